@@ -1,0 +1,50 @@
+"""Validation of array arguments at the public boundary (shapes, finiteness, definiteness)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidInputError
+
+
+def as_float_array(name: str, value: object, *, dtype: type = np.float64) -> np.ndarray:
+    """Convert ``value`` to a float array or raise an error that names the argument."""
+    try:
+        array = np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{name} must be numeric; could not convert it ({exc})") from None
+    return array
+
+
+def check_shape(name: str, array: np.ndarray, expected: tuple[int | None, ...], meaning: str) -> None:
+    """Raise unless ``array.shape`` matches ``expected`` (``None`` matches any length)."""
+    ok = array.ndim == len(expected) and all(e is None or e == s for e, s in zip(expected, array.shape))
+    if not ok:
+        shown = "(" + ", ".join("?" if e is None else str(e) for e in expected) + ")"
+        raise InvalidInputError(f"{name} must have shape {shown} {meaning}; got {array.shape}")
+
+
+def check_finite(name: str, array: np.ndarray) -> None:
+    """Raise if ``array`` holds NaN or infinity."""
+    if not np.all(np.isfinite(array)):
+        bad = np.argwhere(~np.isfinite(array))[0]
+        raise InvalidInputError(f"{name} must be finite; entry {tuple(int(i) for i in bad)} is {array[tuple(bad)]}")
+
+
+def check_covariance(name: str, cov: np.ndarray, *, allow_singular: bool = False) -> None:
+    """Raise unless every matrix in ``cov`` (``(..., n, n)``) is symmetric positive (semi-)definite."""
+    check_finite(name, cov)
+    scale = np.maximum(np.abs(cov).max(axis=(-2, -1), keepdims=True), np.finfo(cov.dtype).tiny)
+    asym = np.abs(cov - np.swapaxes(cov, -1, -2)) / scale
+    if np.any(asym > 1e-8):
+        raise InvalidInputError(f"{name} must be symmetric; max relative asymmetry {asym.max():.3g}")
+    eig_min = np.linalg.eigvalsh(cov)[..., 0]
+    limit = -1e-12 * scale[..., 0, 0] if allow_singular else 0.0
+    bad = eig_min < limit if allow_singular else eig_min <= 0.0
+    if np.any(bad):
+        where = np.argwhere(np.atleast_1d(bad))[0]
+        which = f" (matrix {tuple(int(i) for i in where)})" if np.ndim(bad) else ""
+        kind = "positive semi-definite" if allow_singular else "positive definite"
+        raise InvalidInputError(
+            f"{name} must be {kind}{which}; smallest eigenvalue {np.atleast_1d(eig_min)[tuple(where)]:.6g}"
+        )

@@ -1,0 +1,135 @@
+"""Atomic output: files appear complete or not at all.
+
+Every file is written under a temporary name in its destination folder and
+renamed over the final name only when the whole run succeeded, so a failed or
+interrupted run never leaves a half-written file and never destroys the
+results of an earlier run.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from ..errors import InvalidInputError
+
+__all__ = ["OutputDirectory", "output_directory", "atomic_write"]
+
+
+def _temporary_name(final: Path) -> Path:
+    return final.with_name(f".{final.name}.{uuid.uuid4().hex[:8]}.tmp")
+
+
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) -> Path:
+    """Call ``write(tmp_path)`` and rename the result to ``path``; remove it on failure.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> atomic_write(d / "a.txt", lambda p: p.write_text("hi")).read_text()
+    'hi'
+    """
+    final = Path(path)
+    tmp = _temporary_name(final)
+    try:
+        write(tmp)
+        os.replace(tmp, final)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return final
+
+
+class OutputDirectory:
+    """Stages the files of one run; :meth:`commit` renames them into place together."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._staged: dict[Path, Path] = {}
+
+    def file(self, name: str) -> Path:
+        """A temporary path to write ``name`` to; it becomes ``path / name`` at commit."""
+        final = self.path / name
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self._staged.get(final) or _temporary_name(final)
+        self._staged[final] = tmp
+        return tmp
+
+    def write_text(self, name: str, text: str) -> Path:
+        """Stage a text file."""
+        tmp = self.file(name)
+        tmp.write_text(text, encoding="utf-8")
+        return self.path / name
+
+    def write_bytes(self, name: str, data: bytes) -> Path:
+        """Stage a binary file."""
+        tmp = self.file(name)
+        tmp.write_bytes(data)
+        return self.path / name
+
+    def commit(self) -> list[Path]:
+        """Rename every staged file to its final name."""
+        done = []
+        for final, tmp in self._staged.items():
+            if tmp.exists():
+                os.replace(tmp, final)
+                done.append(final)
+        self._staged.clear()
+        return done
+
+    def discard(self) -> None:
+        """Delete every staged temporary file."""
+        for tmp in self._staged.values():
+            tmp.unlink(missing_ok=True)
+        self._staged.clear()
+
+
+@contextmanager
+def output_directory(path: str | os.PathLike[str]) -> Iterator[OutputDirectory]:
+    """Context manager for a run's output folder.
+
+    The folder is created if needed and checked to be writable before any work
+    is done.  Files staged through the yielded :class:`OutputDirectory` are
+    renamed into place when the block succeeds; on an exception (including
+    Ctrl-C) they are deleted, a folder this call created is removed again, and
+    the exception propagates.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp()) / "run"
+    >>> with output_directory(d) as out:
+    ...     _ = out.write_text("result.csv", "a,b\\n1,2\\n")
+    >>> sorted(p.name for p in d.iterdir())
+    ['result.csv']
+    """
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise InvalidInputError(f"output folder {folder} exists and is not a folder")
+    created = []
+    for parent in [folder, *folder.parents]:
+        if parent.exists():
+            break
+        created.append(parent)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = _temporary_name(folder / "probe")
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        for c in created:
+            shutil.rmtree(c, ignore_errors=True)
+        raise InvalidInputError(f"output folder {folder} is not writable ({exc.strerror or exc})") from None
+    out = OutputDirectory(folder)
+    try:
+        yield out
+    except BaseException:
+        out.discard()
+        for c in created:
+            shutil.rmtree(c, ignore_errors=True)
+        raise
+    out.commit()

@@ -1,0 +1,1 @@
+"""Built-in data: the synthetic polyhedron scene and the published fusion experiments."""

@@ -1,0 +1,1 @@
+"""Structure: factorization (shape and motion) and triangulation with known motion."""

@@ -1,0 +1,1 @@
+"""Image tracking: corner detection, gated template search and the Kalman tracker."""
