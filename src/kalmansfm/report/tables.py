@@ -146,10 +146,10 @@ def format_text(table: FusionTable, *, decimals: int = 4) -> str:
     ...                 [[10.2], [10.05]], [[1.0], [0.7071]])
     >>> print(format_text(t, decimals=2))
     Two readings
-         |         measured          |          kalman
-    iter | truth  value   std  error | value   std  error
-       1 | 10.00  10.20  1.00   0.20 | 10.20  1.00   0.20
-       2 | 10.00   9.90  1.00  -0.10 | 10.05  0.71   0.05
+         |       |      measured      |       kalman
+    iter | truth | value   std  error | value   std  error
+       1 | 10.00 | 10.20  1.00   0.20 | 10.20  1.00   0.20
+       2 | 10.00 |  9.90  1.00  -0.10 | 10.05  0.71   0.05
     """
     t = table
     lines = [t.title]
