@@ -65,6 +65,11 @@ class Occluder:
     height_px : float or None
         Height of the card, centred on the marker's mean row while hidden;
         None spans the whole image height (a pole in front of the camera).
+    marker : bool
+        Put a dark marker of the same size on the card, at the hidden
+        marker's mean row, so that two markers cross: the card's marker passes
+        over the hidden one in the middle of the occlusion (a test of identity
+        swaps).  Its positions are ``Scene.occluder_marker_positions``.
     """
 
     track_id: int = 0
@@ -72,6 +77,7 @@ class Occluder:
     n_frames: int = 3
     speed_px: float = 6.0
     height_px: float | None = 40.0
+    marker: bool = False
 
 
 @dataclass(frozen=True)
@@ -105,6 +111,9 @@ class Scene:
         Every parameter used to render (JSON-serialisable).
     occluder_boxes : (F, 4) float64
         The occluder rectangle ``x0, y0, x1, y1`` per frame (NaN without occluder).
+    occluder_marker_positions : (F, 2) float64
+        Centre of the occluder's own marker, x, y (NaN without one); it is not
+        one of the corners and has no 3D point.
     """
 
     frames: np.ndarray
@@ -118,6 +127,7 @@ class Scene:
     track_ids: np.ndarray
     parameters: dict[str, Any] = field(default_factory=dict)
     occluder_boxes: np.ndarray | None = None
+    occluder_marker_positions: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -319,7 +329,7 @@ def render_scene(
         ``"exit"``: the object accelerates out of the image through the left
         border, so that markers leave the image.
     marker_size_px : float
-        Side of the square markers in pixels.
+        Side of the square markers in pixels (0 draws none).
     yaw_deg, tilt_deg, roll_deg : (float, float)
         (start angle, total change over the sequence) in degrees of the
         rotations about the object's vertical axis, the camera's horizontal
@@ -353,8 +363,8 @@ def render_scene(
         raise InvalidInputError(f"pixel_noise_std must be a finite number >= 0; got {pixel_noise_std!r}")
     if scenario not in SCENARIOS:
         raise InvalidInputError(f"scenario must be one of {', '.join(SCENARIOS)}; got {scenario!r}")
-    if not 1.0 <= marker_size_px <= 30.0:
-        raise InvalidInputError(f"marker_size_px must be in [1, 30]; got {marker_size_px}")
+    if not 0.0 <= marker_size_px <= 30.0:
+        raise InvalidInputError(f"marker_size_px must be in [0, 30] (0: no markers); got {marker_size_px}")
     if not isinstance(supersample, (int, np.integer)) or not 1 <= supersample <= 8:
         raise InvalidInputError(f"supersample must be an integer in 1 … 8; got {supersample!r}")
     corners, faces = _house()
@@ -399,8 +409,12 @@ def render_scene(
         & (marker_boxes[..., 3] <= height - 0.5)
     )
     occluder_boxes = np.full((n_frames, 4), np.nan)
+    occluder_marker = np.full((n_frames, 2), np.nan)
     if occluder is not None:
-        occluder_boxes = _place_occluder(occluder, positions, half, width, height)
+        occluder_boxes, marker_row = _place_occluder(occluder, positions, half, width, height)
+        if occluder.marker:
+            occluder_marker[:, 0] = 0.5 * (occluder_boxes[:, 0] + occluder_boxes[:, 2])
+            occluder_marker[:, 1] = marker_row
     ox0, oy0, ox1, oy1 = (occluder_boxes[:, None, k] for k in range(4))
     touched = (
         (marker_boxes[..., 0] < ox1)
@@ -433,6 +447,10 @@ def render_scene(
     if occluder is not None:
         card = _rectangle_coverage(occluder_boxes[:, None, :], width, height).astype(np.float32)
         frames += card * (_card_texture(occluder_boxes, width, height) - frames)
+        if occluder.marker:
+            boxes = np.concatenate([occluder_marker - half, occluder_marker + half], axis=-1)[:, None, :]
+            card_marker = _rectangle_coverage(boxes, width, height).astype(np.float32)
+            frames += card_marker * (np.float32(_MARKER_INTENSITY) - frames)
     if pixel_noise_std > 0:
         frames += rng.normal(0.0, pixel_noise_std, size=frames.shape).astype(np.float32)
     frames = np.clip(np.rint(frames), 0, 255).astype(np.uint8)
@@ -458,7 +476,7 @@ def render_scene(
         "camera": "scaled orthographic",
         "solid": "convex house: box with gable roof, 10 corners, 7 faces",
     }
-    for array in (corners, positions, visible, rotations, translations, occluder_boxes, frames):
+    for array in (corners, positions, visible, rotations, translations, occluder_boxes, occluder_marker, frames):
         array.setflags(write=False)
     track_ids = np.arange(len(corners), dtype=np.int64)
     track_ids.setflags(write=False)
@@ -474,11 +492,14 @@ def render_scene(
         track_ids=track_ids,
         parameters=parameters,
         occluder_boxes=occluder_boxes,
+        occluder_marker_positions=occluder_marker,
     )
 
 
-def _place_occluder(occluder: Occluder, positions: np.ndarray, marker_half: float, width: int, height: int) -> np.ndarray:
-    """Per-frame box of a card that fully covers the target marker exactly in the chosen frames."""
+def _place_occluder(
+    occluder: Occluder, positions: np.ndarray, marker_half: float, width: int, height: int
+) -> tuple[np.ndarray, float]:
+    """Per-frame box of a card that fully covers the target marker exactly in the chosen frames, and its row."""
     n_frames = positions.shape[0]
     target = positions[:, occluder.track_id]
     hidden = np.zeros(n_frames, dtype=bool)
@@ -497,10 +518,10 @@ def _place_occluder(occluder: Occluder, positions: np.ndarray, marker_half: floa
             f"{occluder.n_frames} frames; use a speed opposite to the object's motion (e.g. 6)"
         )
     half_width = min(0.5 * (worst_hidden + nearest_free), worst_hidden + marker_half + 0.5 * width)
+    centre_y = float(target[hidden, 1].mean())
     if occluder.height_px is None:
         y0, y1 = -1.0, height + 1.0
     else:
-        centre_y = target[hidden, 1].mean()
         y0, y1 = centre_y - occluder.height_px / 2.0, centre_y + occluder.height_px / 2.0
         if y0 > target[hidden, 1].min() - marker_half or y1 < target[hidden, 1].max() + marker_half:
             raise InvalidInputError(
@@ -513,7 +534,7 @@ def _place_occluder(occluder: Occluder, positions: np.ndarray, marker_half: floa
     boxes[:, 2] = centre_x + half_width
     boxes[:, 1] = y0
     boxes[:, 3] = y1
-    return boxes
+    return boxes, centre_y
 
 
 def _card_texture(boxes: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -542,8 +563,11 @@ def _render_frames(
     """Background and textured front faces, supersampled ``s`` times and area-averaged: (F, H, W) float32."""
     n_frames = len(rotations)
     fine_w, fine_h = width * s, height * s
-    background = _smooth_noise(rng, (fine_h, fine_w), 2.5 * s, 95.0, 0.6 * contrast)
-    background += _smooth_noise(rng, (fine_h, fine_w), 15.0 * s, 0.0, 0.8 * contrast)
+    # the background is smooth, so it is drawn at a coarse resolution and interpolated to the fine grid
+    coarse = _smooth_noise(rng, (height // 4 + 2, width // 4 + 2), 15.0 / 4, 0.0, 0.8 * contrast)
+    background = _smooth_noise(rng, (height, width), 2.5, 95.0, 0.6 * contrast)
+    background += cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+    background = cv2.resize(background, (fine_w, fine_h), interpolation=cv2.INTER_LINEAR)
 
     # one texture per face in the face's own plane
     texel_units = 0.5 / scale  # half an image pixel
