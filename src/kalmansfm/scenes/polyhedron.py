@@ -59,9 +59,10 @@ class Occluder:
         Number of consecutive frames in which it is hidden (>= 1).
     speed_px : float
         Horizontal speed of the card (pixels per frame, positive = rightwards).
-        It must differ from the marker's own horizontal speed by more than the
-        marker's size divided by ... so that the card can pass it in exactly
-        ``n_frames`` frames; a speed opposite to the object's motion works best.
+        Relative to the marker it must move more than about one marker size
+        per frame, so that a card width exists that covers the marker in
+        exactly ``n_frames`` frames; otherwise :class:`InvalidInputError`.  A
+        speed opposite to the object's leftward motion works best.
     height_px : float or None
         Height of the card, centred on the marker's mean row while hidden;
         None spans the whole image height (a pole in front of the camera).
@@ -114,6 +115,8 @@ class Scene:
     occluder_marker_positions : (F, 2) float64
         Centre of the occluder's own marker, x, y (NaN without one); it is not
         one of the corners and has no 3D point.
+    faces : tuple of tuple of int
+        The solid's faces as corner indices (convex polygons).
     """
 
     frames: np.ndarray
@@ -128,6 +131,7 @@ class Scene:
     parameters: dict[str, Any] = field(default_factory=dict)
     occluder_boxes: np.ndarray | None = None
     occluder_marker_positions: np.ndarray | None = None
+    faces: tuple[tuple[int, ...], ...] = ()
 
     @property
     def n_frames(self) -> int:
@@ -229,6 +233,29 @@ def _interval_coverage(low: np.ndarray, high: np.ndarray, n: int) -> np.ndarray:
     lo = np.maximum(low[..., None], k - 0.5)
     hi = np.minimum(high[..., None], k + 0.5)
     return np.clip(hi - lo, 0.0, 1.0)
+
+
+def _convex_row_coverage(vertices: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Coverage of the pixels of a ``height x width`` grid by a convex polygon: (height, width) float32.
+
+    Each pixel row is sampled at its centre line; along that line the polygon
+    is an interval ``[left, right]`` whose exact overlap with each pixel is
+    taken, so edges carry no half-pixel bias (unlike a fill rule that includes
+    every pixel an edge touches).
+    """
+    start, end = vertices, np.roll(vertices, -1, axis=0)
+    rows = np.arange(height, dtype=np.float64)[:, None]
+    dy = end[:, 1] - start[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # x where each edge crosses the row's centre line
+        x = start[:, 0] + (rows - start[:, 1]) * (end[:, 0] - start[:, 0]) / dy
+    crossing = (rows >= np.minimum(start[:, 1], end[:, 1])) & (rows < np.maximum(start[:, 1], end[:, 1]))
+    left = np.where(crossing, x, np.inf).min(axis=1)
+    right = np.where(crossing, x, -np.inf).max(axis=1)
+    right = np.maximum(right, left)  # rows outside the polygon: empty interval
+    left = np.where(np.isfinite(left), left, 0.0)
+    right = np.where(np.isfinite(right), right, 0.0)
+    return _interval_coverage(left, right, width).astype(np.float32)
 
 
 def _rectangle_coverage(boxes: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -382,7 +409,7 @@ def render_scene(
     velocity = np.array([-3.0, 0.35]) * size_factor
     acceleration = np.array([-0.045, -0.012]) * size_factor
     if scenario == "exit":
-        velocity = np.array([-3.5, 0.2]) * size_factor
+        velocity = np.array([-4.0, 0.2]) * size_factor
         acceleration = np.array([-0.30, 0.0]) * size_factor
     # t(f) = t0 + v f + a f^2 / 2
     translations = start + velocity * time[:, None] + 0.5 * acceleration * time[:, None] ** 2
@@ -493,6 +520,7 @@ def render_scene(
         parameters=parameters,
         occluder_boxes=occluder_boxes,
         occluder_marker_positions=occluder_marker,
+        faces=tuple(tuple(face) for face in faces),
     )
 
 
@@ -594,8 +622,6 @@ def _render_frames(
     normals = _outward_normals(corners, faces)
     frames = np.empty((n_frames, height, width), dtype=np.float32)
     canvas = np.empty((fine_h, fine_w), dtype=np.float32)
-    mask = np.zeros((fine_h, fine_w), dtype=np.uint8)
-    shift = 4
     for f in range(n_frames):
         canvas[:] = background
         projection = scale * rotations[f, :2]  # (2, 3)
@@ -620,10 +646,8 @@ def _render_frames(
             )
             # Lambertian shading: brightness (1 - shading) + shading * max(0, n·l)
             patch *= np.float32((1.0 - shading) + shading * max(0.0, camera_normals[k] @ light))
-            roi_mask = mask[y0:y1, x0:x1]
-            roi_mask[:] = 0
-            vertices = np.rint((fine - [x0, y0]) * (1 << shift)).astype(np.int32)
-            cv2.fillConvexPoly(roi_mask, vertices, 255, lineType=cv2.LINE_8, shift=shift)
-            np.copyto(canvas[y0:y1, x0:x1], patch, where=roi_mask.astype(bool))
+            cover = _convex_row_coverage(fine - [x0, y0], y1 - y0, x1 - x0)
+            roi = canvas[y0:y1, x0:x1]
+            roi += cover * (patch - roi)
         frames[f] = cv2.resize(canvas, (width, height), interpolation=cv2.INTER_AREA)
     return frames
