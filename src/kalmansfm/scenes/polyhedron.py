@@ -230,9 +230,12 @@ def _interval_coverage(low: np.ndarray, high: np.ndarray, n: int) -> np.ndarray:
     ``low``, ``high`` have any shape S; the result has shape S + (n,).
     """
     k = np.arange(n, dtype=np.float64)
-    lo = np.maximum(low[..., None], k - 0.5)
-    hi = np.minimum(high[..., None], k + 0.5)
-    return np.clip(hi - lo, 0.0, 1.0)
+    overlap = np.minimum(high[..., None], k + 0.5)
+    overlap -= np.maximum(low[..., None], k - 0.5)
+    # np.clip is slow on large arrays; two in-place bounds are not
+    np.maximum(overlap, 0.0, out=overlap)
+    np.minimum(overlap, 1.0, out=overlap)
+    return overlap
 
 
 def _convex_row_coverage(vertices: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -261,13 +264,16 @@ def _convex_row_coverage(vertices: np.ndarray, height: int, width: int) -> np.nd
 def _rectangle_coverage(boxes: np.ndarray, width: int, height: int) -> np.ndarray:
     """Exact area coverage of axis-aligned boxes ``(..., K, 4)`` (x0, y0, x1, y1) summed over K.
 
-    Returns ``(..., height, width)``; NaN boxes cover nothing.
+    Returns ``(..., height, width)`` float32; NaN boxes cover nothing.
     """
     boxes = np.nan_to_num(boxes, nan=-10.0)
     cover_x = _interval_coverage(boxes[..., 0], boxes[..., 2], width)  # (..., K, W)
     cover_y = _interval_coverage(boxes[..., 1], boxes[..., 3], height)  # (..., K, H)
     # coverage(r, c) = sum_k cover_y[k, r] * cover_x[k, c]
-    return np.clip(np.swapaxes(cover_y, -1, -2) @ cover_x, 0.0, 1.0)
+    # contiguous float32 operands keep the batched product on BLAS
+    cover = np.ascontiguousarray(np.swapaxes(cover_y, -1, -2), dtype=np.float32) @ cover_x.astype(np.float32)
+    np.minimum(cover, 1.0, out=cover)
+    return cover
 
 
 # ---------------------------------------------------------------------------------------------
@@ -470,13 +476,13 @@ def render_scene(
     )
     # markers where the corner is on a front face (also partly outside the image), dark
     marker_cover = _rectangle_coverage(np.where(on_front_face[..., None], marker_boxes, np.nan), width, height)
-    frames += marker_cover.astype(np.float32) * (np.float32(_MARKER_INTENSITY) - frames)
+    frames += marker_cover * (np.float32(_MARKER_INTENSITY) - frames)
     if occluder is not None:
-        card = _rectangle_coverage(occluder_boxes[:, None, :], width, height).astype(np.float32)
+        card = _rectangle_coverage(occluder_boxes[:, None, :], width, height)
         frames += card * (_card_texture(occluder_boxes, width, height) - frames)
         if occluder.marker:
             boxes = np.concatenate([occluder_marker - half, occluder_marker + half], axis=-1)[:, None, :]
-            card_marker = _rectangle_coverage(boxes, width, height).astype(np.float32)
+            card_marker = _rectangle_coverage(boxes, width, height)
             frames += card_marker * (np.float32(_MARKER_INTENSITY) - frames)
     if pixel_noise_std > 0:
         frames += rng.normal(0.0, pixel_noise_std, size=frames.shape).astype(np.float32)
