@@ -575,8 +575,11 @@ def _card_texture(boxes: np.ndarray, width: int, height: int) -> np.ndarray:
     """Light stripes that move with the card: (F, H, W) float32."""
     columns = np.arange(width, dtype=np.float64)[None, None, :] - boxes[:, None, None, 0]
     rows = np.arange(height, dtype=np.float64)[None, :, None]
-    texture = 185.0 + 35.0 * np.sin(2 * np.pi * columns / 9.0) * np.cos(2 * np.pi * rows / 23.0)
-    return texture.astype(np.float32)
+    across = (35.0 * np.sin(2 * np.pi * columns / 9.0)).astype(np.float32)
+    down = np.cos(2 * np.pi * rows / 23.0).astype(np.float32)
+    texture = across * down
+    texture += np.float32(185.0)
+    return texture
 
 
 def _render_frames(
