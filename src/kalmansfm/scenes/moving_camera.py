@@ -1,12 +1,13 @@
 """The ground-truth path of the report's Tasks 6 and 7: a robot on a flat road.
 
 Thomas & Oliensis (``004_cd423c68da9c9743.txt``) move a sensor past one landmark;
-the landmark's coordinates in the sensor frame change as x_k = C_k x_{k-1} ... more
-precisely x_{k+1} = C_k x_k - b_k (eq. 23), with rotations about the vertical
+the landmark's coordinates in the sensor frame change as
+x_{k+1} = C_k x_k - b_k (eq. 23), with rotations about the vertical
 (camera Y) axis and translations on the ground plane.  The report prints only the
 resulting coordinates; the motion below reproduces every ground-truth row of
 Table 6.1 (24 rows) and Table 7.1 (24 rows) to their printed precision
-(``tests/unit/scenes/test_moving_camera.py``):
+(``tests/unit/scenes/test_moving_camera.py``); it is Task 6's motion of
+:mod:`kalmansfm.scenes.fusion_tasks`, continued for one more step:
 
 * the landmark starts at (40, 40, 60) m in the first sensor frame;
 * C_k = R_y(+1°) for even k (0, 2, 4, ...) and R_y(-1°) for odd k, with
@@ -25,34 +26,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
+from .fusion_tasks import _alternating_yaw_and_forward_step
 
-__all__ = ["CameraPath", "rotation_about_y", "report_path"]
+__all__ = ["CameraPath", "report_path"]
 
 #: The landmark in the first sensor frame (Table 6.1, row 1), metres.
 REPORT_LANDMARK = (40.0, 40.0, 60.0)
-#: The yaw of each step, degrees, alternating in sign.
-REPORT_YAW_DEG = 1.0
-#: The forward translation of each step, metres.
-REPORT_STEP = (0.0, 0.0, 1.0)
-
-
-def rotation_about_y(angle_rad: float | np.ndarray) -> np.ndarray:
-    """R_y(θ) = [[cos θ, 0, sin θ], [0, 1, 0], [-sin θ, 0, cos θ]], shape (..., 3, 3).
-
-    Examples
-    --------
-    >>> rotation_about_y(np.pi / 2).round(12) @ np.array([0.0, 0.0, 1.0])
-    array([1., 0., 0.])
-    """
-    t = np.asarray(angle_rad, dtype=float)
-    c, s = np.cos(t), np.sin(t)
-    R = np.zeros(t.shape + (3, 3))
-    R[..., 0, 0] = c
-    R[..., 0, 2] = s
-    R[..., 1, 1] = 1.0
-    R[..., 2, 0] = -s
-    R[..., 2, 2] = c
-    return R
 
 
 @dataclass(frozen=True)
@@ -94,9 +73,8 @@ def report_path(n_frames: int = 25) -> CameraPath:
     if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
         raise InvalidInputError(f"n_frames must be an integer >= 2; got {n_frames!r}")
     steps = n_frames - 1
-    signs = np.where(np.arange(steps) % 2 == 0, 1.0, -1.0)
-    C = rotation_about_y(np.deg2rad(REPORT_YAW_DEG) * signs)
-    b = np.broadcast_to(np.asarray(REPORT_STEP), (steps, 3)).copy()
+    # The same motion as Task 6 in fusion_tasks (one definition of the path).
+    C, b = _alternating_yaw_and_forward_step(steps)
     x = np.empty((n_frames, 3))
     x[0] = REPORT_LANDMARK
     for k in range(steps):
