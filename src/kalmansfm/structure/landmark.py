@@ -49,8 +49,9 @@ METHODS = ("pairs", "batch")
 #: measurement status where a pair could not be formed (first image, or a landmark missing in one image).
 TRIANGULATION_NOT_OBSERVED = 3
 
-_MAX_ITERATIONS = 100
-_STEP_TOLERANCE = 1e-8
+_MAX_ITERATIONS = 60
+_STEP_TOLERANCE = 1e-6
+_STOP_TOLERANCE = 1e-18
 
 
 @dataclass(frozen=True)
@@ -236,39 +237,51 @@ def _gauss_newton(
     """Levenberg-Marquardt-damped Gauss-Newton over L independent 3-vectors; returns X0, normal matrix, converged.
 
     Converged means the undamped Gauss-Newton step δ = N⁻¹ g left is negligible
-    against the estimate's own uncertainty: δᵀ N δ = gᵀ N⁻¹ g < 1e-8 (the
+    against the estimate's own uncertainty: δᵀ N δ = gᵀ N⁻¹ g < 1e-6 (the
     squared step length in standard deviations).
     """
     L = X0.shape[0]
+    X0 = X0.copy()
     lam = np.full(L, 1e-3)
     r, Jac, _ = _reprojection(X0, A, c, obs, w, focal)
     cost = np.sum(r**2, axis=(0, 2))
-    converged = np.zeros(L, dtype=bool)
     eye = np.eye(3)
+    stalled = np.zeros(L, dtype=bool)
     for _ in range(_MAX_ITERATIONS):
         N = np.einsum("vlai,vlaj->lij", Jac, Jac)
         g = np.einsum("vlai,vla->li", Jac, r)
         # A tiny ridge keeps the solves defined where N is (numerically) singular.
         ridge = 1e-14 * np.trace(N, axis1=1, axis2=2) + np.finfo(float).tiny
         gn_step = np.linalg.solve(N + ridge[:, None, None] * eye, g[..., None])[..., 0]
-        converged = np.einsum("li,li->l", g, gn_step) < _STEP_TOLERANCE
-        active = ~converged
+        decrement = np.einsum("li,li->l", g, gn_step)  # gᵀ N⁻¹ g, the squared GN step in standard deviations
+        # Iterate to full precision (exact data) while steps still lower the cost; once the step is
+        # statistically negligible, one step without progress ends the iteration.
+        active = (decrement >= _STOP_TOLERANCE * (1.0 + cost)) & (lam < 1e12)
+        active &= ~((decrement < _STEP_TOLERANCE) & stalled)
         if not active.any():
             break
-        damped = N + (lam[:, None, None] * np.diagonal(N, axis1=1, axis2=2)[:, :, None] + ridge[:, None, None]) * eye
-        step = np.linalg.solve(damped, g[..., None])[..., 0]
-        X_new = X0 + np.where(active[:, None], step, 0.0)
-        r_new, J_new, z_new = _reprojection(X_new, A, c, obs, w, focal)
+        # Only the landmarks still iterating are stepped (the others would cost as much for nothing).
+        a = np.flatnonzero(active)
+        Na = N[a]
+        damped = Na + (lam[a, None, None] * np.diagonal(Na, axis1=1, axis2=2)[:, :, None] + ridge[a, None, None]) * eye
+        step = np.linalg.solve(damped, g[a, :, None])[..., 0]
+        X_new = X0[a] + step
+        r_new, J_new, z_new = _reprojection(X_new, A, c, obs[:, a], w[:, a], focal)
         cost_new = np.sum(r_new**2, axis=(0, 2))
         # Accept a step that keeps the point in front of every camera and does not raise the cost.
-        accept = active & (z_new > 0) & (cost_new <= cost) & np.isfinite(cost_new)
-        X0 = np.where(accept[:, None], X_new, X0)
-        r = np.where(accept[None, :, None], r_new, r)
-        Jac = np.where(accept[None, :, None, None], J_new, Jac)
-        cost = np.where(accept, cost_new, cost)
-        lam = np.where(accept, np.maximum(lam / 10.0, 1e-12), np.minimum(lam * 10.0, 1e12))
+        ok = (z_new > 0) & (cost_new <= cost[a]) & np.isfinite(cost_new)
+        acc = a[ok]
+        X0[acc] = X_new[ok]
+        r[:, acc] = r_new[:, ok]
+        Jac[:, acc] = J_new[:, ok]
+        stalled[a] = ~ok | (cost[a] - cost_new <= 1e-14 * cost[a])
+        cost[acc] = cost_new[ok]
+        lam[a] = np.where(ok, np.maximum(lam[a] / 10.0, 1e-12), np.minimum(lam[a] * 10.0, 1e12))
     N = np.einsum("vlai,vlaj->lij", Jac, Jac)
-    return X0, N, converged
+    g = np.einsum("vlai,vla->li", Jac, r)
+    ridge = 1e-14 * np.trace(N, axis1=1, axis2=2) + np.finfo(float).tiny
+    decrement = np.einsum("li,li->l", g, np.linalg.solve(N + ridge[:, None, None] * eye, g[..., None])[..., 0])
+    return X0, N, decrement < _STEP_TOLERANCE
 
 
 def _initial_depth_search(obs0: np.ndarray, obs1: np.ndarray, A1: np.ndarray, c1: np.ndarray, w: np.ndarray,
