@@ -1,1 +1,5 @@
 """Built-in data: the synthetic polyhedron scene and the published fusion experiments."""
+
+from .polyhedron import SCENARIOS, Occluder, Scene, render_scene
+
+__all__ = ["SCENARIOS", "Occluder", "Scene", "render_scene"]
