@@ -116,7 +116,9 @@ class Tracker:
     gate_radius : the gate's c directly (Mahalanobis radius).
     max_misses : a track coasts at most this many consecutive frames; the next miss loses it.
     max_dissimilarity : a match is accepted when SSD / Σ(T - T̄)² (``ssd``) or
-        1 - NCC (``ncc``) is at most this (default 0.5 for ssd, 0.3 for ncc).
+        1 - NCC (``ncc``) is at most this (default 0.5 for ssd, 0.3 for ncc).  A
+        coasting track is searched with its anchor template and re-acquired only below
+        the mean of ``max_dissimilarity`` and ``anchor_dissimilarity``.
     template_policy : ``"anchored"`` (default), ``"first"`` or ``"last"`` (module docs).
     model : the motion model (default :func:`~kalmansfm.models.constant_velocity_2d`).
     max_features, quality_level, min_distance_px : corner detection settings when
@@ -199,6 +201,8 @@ class Tracker:
         if int(anchor_patience) != anchor_patience or anchor_patience < 1:
             raise InvalidInputError(f"anchor_patience must be an integer >= 1; got {anchor_patience}")
         self.anchor_patience = int(anchor_patience)
+        # Halfway between "acceptable" and "trusted anchor".
+        self.reacquire_dissimilarity = 0.5 * (self.max_dissimilarity + self.anchor_dissimilarity)
         self.model = constant_velocity_2d() if model is None else model
         self.max_features = int(max_features)
         self.quality_level = float(quality_level)
@@ -217,6 +221,7 @@ class Tracker:
             "anchor_dissimilarity": self.anchor_dissimilarity,
             "anchor_patience": self.anchor_patience,
             "refine": self.refine,
+            "reacquire_dissimilarity": self.reacquire_dissimilarity,
             "max_features": self.max_features,
             "quality_level": self.quality_level,
             "min_distance_px": self.min_distance_px,
@@ -415,13 +420,22 @@ class Tracker:
         kf.predict()
         predicted = kf.x_prior[:, :2].copy()
         prior_P = np.array(kf.P_prior)
+        coasting = self._misses > 0
+        search_templates = self._templates
+        if self.template_policy == "anchored" and coasting.any():
+            # The current template may have caught part of whatever hid the point: a
+            # coasting track is searched with its anchor, the last verified appearance.
+            search_templates = np.where(coasting[:, None, None], self._anchors, self._templates)
         match = match_templates(
-            frame, self._templates, predicted, prior_P[:, :2, :2], self.gate_radius, self.score, self.max_search_radius
+            frame, search_templates, predicted, prior_P[:, :2, :2], self.gate_radius, self.score, self.max_search_radius
         )
         z = match.positions.copy()
-        good = match.searched & (match.dissimilarity <= self.max_dissimilarity)
+        # A coasting track must match as well as a trusted anchor to be re-acquired, so
+        # that it does not latch on to a look-alike in its grown gate.
+        threshold = np.where(coasting, self.reacquire_dissimilarity, self.max_dissimilarity)
+        good = match.searched & (match.dissimilarity <= threshold)
         dissimilarity = match.dissimilarity
-        used = self._templates
+        used = search_templates
         if self.template_policy == "anchored" and good.any():
             z, dissimilarity, used_anchor = self._anchor_correction(frame, z, good, dissimilarity)
             used = np.where(used_anchor[:, None, None], self._anchors, self._templates)
