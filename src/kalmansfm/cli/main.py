@@ -21,7 +21,7 @@ from .. import __version__
 from ..errors import KalmanSfmError
 
 # Order shown in --help.
-SUBCOMMANDS = ["tables", "consistency", "scene"]
+SUBCOMMANDS = ["track", "tables", "consistency", "scene"]
 
 log = logging.getLogger("kalmansfm")
 
