@@ -42,7 +42,7 @@ figcaption { font-size:13px; color:var(--muted); margin-top:3px; }
 .strip { display:grid; grid-template-columns:repeat(auto-fill,minmax(170px,1fr)); gap:8px; }
 .strip figure { margin:0; }
 .strip img { width:100%; image-rendering:pixelated; }
-.player img { image-rendering:pixelated; max-width:100%; }
+.player img { image-rendering:pixelated; max-width:100%; height:auto; }
 .controls { display:flex; align-items:center; gap:8px; margin:6px 0; font-size:14px; flex-wrap:wrap; }
 .controls input[type=range] { width:260px; }
 button { font:inherit; font-size:13px; padding:2px 10px; border:1px solid var(--line); border-radius:4px;

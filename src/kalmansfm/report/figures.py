@@ -42,6 +42,11 @@ _SHIFT = 4
 _ONE = 1 << _SHIFT
 
 
+_PALETTE = [matplotlib.colors.to_hex(c) for c in plt.get_cmap("tab10").colors] + [
+    matplotlib.colors.to_hex(c) for c in plt.get_cmap("tab20b").colors
+]
+
+
 def track_colors(count: int) -> list[str]:
     """``count`` distinct colours as ``#rrggbb`` (Matplotlib's tab10, then tab20b, cycled).
 
@@ -50,9 +55,7 @@ def track_colors(count: int) -> list[str]:
     >>> track_colors(2)
     ['#1f77b4', '#ff7f0e']
     """
-    palette = [matplotlib.colors.to_hex(c) for c in plt.get_cmap("tab10").colors]
-    palette += [matplotlib.colors.to_hex(c) for c in plt.get_cmap("tab20b").colors]
-    return [palette[k % len(palette)] for k in range(count)]
+    return [_PALETTE[k % len(_PALETTE)] for k in range(count)]
 
 
 def _bgr(hex_color: str) -> tuple[int, int, int]:
@@ -93,11 +96,13 @@ def gate_ellipses(covariances: np.ndarray, probability: float = 0.95) -> tuple[n
 
 
 def _display_scale(width: int, target_width: int) -> float:
-    """Integer up-scaling for small frames, plain down-scaling for large ones."""
+    """Integer enlargement for small frames, shrinking for big ones, 1 when close to the target."""
     if width <= 0:
         return 1.0
-    if width < target_width:
-        return float(max(1, target_width // width))
+    if width < target_width / 1.5:
+        return float(round(target_width / width))
+    if width <= 1.3 * target_width:
+        return 1.0
     return target_width / width
 
 
@@ -138,12 +143,13 @@ def render_tracked_frames(
         Measured points are filled discs, predicted ones rings, lost ones crosses;
         each track has its own colour (see :func:`track_colors`).
     """
-    colors = [_bgr(c) for c in track_colors(tracks.positions.shape[1])]
+    n_tracks = tracks.positions.shape[1]
+    # tracks sharing a colour are drawn together: one OpenCV call per colour and kind of mark
+    palette_size = len(_PALETTE)
+    groups = [(_bgr(_PALETTE[c]), np.arange(c, n_tracks, palette_size)) for c in range(min(palette_size, n_tracks))]
     positions = tracks.positions
-    semi_axes = angles = None
-    if tracks.covariances is not None:
-        semi_axes, angles = gate_ellipses(tracks.covariances, gate_probability)
     blank = _blank_canvas(tracks) if not frames else None
+    label_tracks = n_tracks <= 40
     rendered = []
     for f in indices:
         image = frames[min(f, len(frames) - 1)] if frames else blank
@@ -154,38 +160,48 @@ def render_tracked_frames(
         canvas = cv2.resize(image, None, fx=scale, fy=scale, interpolation=interpolation)
         # pixel (x, y) has its centre at ((x + 0.5) * scale - 0.5) on the resized canvas
         shown = ((positions[: f + 1] + 0.5) * scale - 0.5) * _ONE
-        marker = max(3, int(round(3 * scale**0.5)))
+        marker = max(3.0, round(3 * scale**0.5)) * _ONE
         thickness = max(1, int(round(scale / 3)))
-        for p, color in enumerate(colors):
-            status = tracks.status[f, p]
-            path = shown[:, p]
-            finite = np.isfinite(path).all(axis=1)
-            # split the path where it has gaps so a missing frame is not bridged
-            for segment in np.split(path, np.flatnonzero(~finite)):
-                segment = segment[np.isfinite(segment).all(axis=1)]
-                if len(segment) >= 2:
-                    cv2.polylines(canvas, [segment.astype(np.int32)], False, color, 1, cv2.LINE_AA, _SHIFT)
-            if not finite[-1]:
-                continue
-            centre = tuple(int(v) for v in path[-1])
-            if semi_axes is not None and status in (STATUS_MEASURED, STATUS_PREDICTED):
-                axes = tuple(int(v) for v in np.nan_to_num(semi_axes[f, p] * scale * _ONE))
-                cv2.ellipse(canvas, centre, axes, float(angles[f, p]), 0, 360, color, 1, cv2.LINE_AA, _SHIFT)
-            if status == STATUS_MEASURED:
-                cv2.circle(canvas, centre, marker * _ONE, color, -1, cv2.LINE_AA, _SHIFT)
-                cv2.circle(canvas, centre, marker * _ONE, (20, 20, 20), 1, cv2.LINE_AA, _SHIFT)
-            elif status == STATUS_PREDICTED:
-                cv2.circle(canvas, centre, marker * _ONE, color, thickness + 1, cv2.LINE_AA, _SHIFT)
-            elif status == STATUS_LOST:
-                c = np.array(centre)
-                d = marker * _ONE
-                for a, b in (((-d, -d), (d, d)), ((-d, d), (d, -d))):
-                    cv2.line(canvas, tuple(c + a), tuple(c + b), color, thickness + 1, cv2.LINE_AA, _SHIFT)
-            label_at = (centre[0] // _ONE + marker + 2, centre[1] // _ONE - marker)
-            cv2.putText(
-                canvas, str(int(tracks.track_ids[p])), label_at, cv2.FONT_HERSHEY_SIMPLEX, 0.4, color, 1, cv2.LINE_AA
-            )
-        counts = np.bincount(tracks.status[f].clip(0, 3), minlength=4)
+        status = tracks.status[f]
+        current = shown[-1]
+        visible = np.isfinite(current).all(axis=1)
+        gates = None
+        if tracks.covariances is not None:
+            semi_axes, angles = gate_ellipses(tracks.covariances[f], gate_probability)
+            gates = _ellipse_polygons(current, semi_axes * scale * _ONE, angles)
+        for color, members in groups:
+            # the path so far: one 2-point line per pair of consecutive known positions (gaps stay open)
+            path = shown[:, members]
+            pairs = np.stack([path[:-1], path[1:]], axis=2)  # (f, n, 2 ends, 2)
+            pairs = pairs[np.isfinite(pairs).all(axis=(2, 3))]
+            if len(pairs):
+                cv2.polylines(canvas, list(pairs.astype(np.int32)), False, color, 1, cv2.LINE_AA, _SHIFT)
+            here = members[visible[members]]
+            active = here[np.isin(status[here], (STATUS_MEASURED, STATUS_PREDICTED))]
+            if gates is not None and len(active):
+                polygons = gates[active]
+                polygons = polygons[np.isfinite(polygons).all(axis=(1, 2))]
+                cv2.polylines(canvas, list(polygons.astype(np.int32)), True, color, 1, cv2.LINE_AA, _SHIFT)
+            measured = here[status[here] == STATUS_MEASURED]
+            if len(measured):
+                discs = list(_circle_polygons(current[measured], marker).astype(np.int32))
+                cv2.fillPoly(canvas, discs, color, cv2.LINE_AA, _SHIFT)
+                cv2.polylines(canvas, discs, True, (20, 20, 20), 1, cv2.LINE_AA, _SHIFT)
+            predicted = here[status[here] == STATUS_PREDICTED]
+            if len(predicted):
+                rings = list(_circle_polygons(current[predicted], marker).astype(np.int32))
+                cv2.polylines(canvas, rings, True, color, thickness + 1, cv2.LINE_AA, _SHIFT)
+            lost = here[status[here] == STATUS_LOST]
+            if len(lost):
+                arms = np.array([[[-1, -1], [1, 1]], [[-1, 1], [1, -1]]]) * marker
+                crosses = (current[lost][:, None, None, :] + arms).reshape(-1, 2, 2)
+                cv2.polylines(canvas, list(crosses.astype(np.int32)), False, color, thickness + 1, cv2.LINE_AA, _SHIFT)
+            if label_tracks:
+                for p in here:
+                    at = (int(current[p, 0] + marker) // _ONE + 2, int(current[p, 1] - marker) // _ONE)
+                    label = str(int(tracks.track_ids[p]))
+                    cv2.putText(canvas, label, at, cv2.FONT_HERSHEY_SIMPLEX, 0.4, color, 1, cv2.LINE_AA)
+        counts = np.bincount(status.clip(0, 3), minlength=4)
         caption = f"frame {f}  measured {counts[1]}  predicted {counts[2]}  lost {counts[3]}"
         cv2.rectangle(canvas, (0, 0), (min(canvas.shape[1], 8 + 7 * len(caption)), 18), (0, 0, 0), -1)
         cv2.putText(canvas, caption, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
@@ -193,9 +209,31 @@ def render_tracked_frames(
     return rendered
 
 
+_ANGLES = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+_UNIT_CIRCLE = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)  # (40, 2)
+
+
+def _circle_polygons(centres: np.ndarray, radius: float) -> np.ndarray:
+    """(n, 40, 2) polygons approximating circles of ``radius`` around ``centres`` (n, 2)."""
+    return centres[:, None, :] + radius * _UNIT_CIRCLE
+
+
+def _ellipse_polygons(centres: np.ndarray, semi_axes: np.ndarray, angle_deg: np.ndarray) -> np.ndarray:
+    """(n, 40, 2) ellipse outlines: semi-axes (n, 2) major, minor; major axis at ``angle_deg`` (n,)."""
+    theta = np.radians(angle_deg)
+    major = np.stack([np.cos(theta), np.sin(theta)], axis=-1)  # (n, 2)
+    minor = np.stack([-np.sin(theta), np.cos(theta)], axis=-1)
+    # p(t) = c + a cos(t) u + b sin(t) v
+    return (
+        centres[:, None, :]
+        + semi_axes[:, None, 0:1] * _UNIT_CIRCLE[None, :, 0:1] * major[:, None, :]
+        + semi_axes[:, None, 1:2] * _UNIT_CIRCLE[None, :, 1:2] * minor[:, None, :]
+    )
+
+
 def png_bytes(image: np.ndarray) -> bytes:
     """Encode a uint8 image (grey or BGR) as PNG."""
-    ok, encoded = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    ok, encoded = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 6])
     if not ok:  # pragma: no cover - OpenCV fails only on unsupported dtypes
         raise RuntimeError("OpenCV could not encode the image as PNG")
     return encoded.tobytes()

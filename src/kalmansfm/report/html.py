@@ -35,8 +35,10 @@ log = logging.getLogger("kalmansfm")
 
 #: Frames shown in the static strip.
 STRIP_FRAMES = 6
-#: At most this many frames go into the animated player (evenly subsampled beyond).
+#: At most this many frames go into the animated player (evenly subsampled beyond) ...
 MAX_PLAYER_FRAMES = 120
+#: ... and fewer if their PNGs would take more than this many bytes.
+MAX_PLAYER_BYTES = 8_000_000
 
 _esc = html.escape
 
@@ -197,10 +199,10 @@ def _section_parameters(run: RunFolder) -> str | None:
     return "".join(parts)
 
 
-def _legend() -> str:
+def _legend(probability: float) -> str:
     return (
         '<p class="legend note"><span>● filled: measured</span><span>○ ring: predicted (no measurement)</span>'
-        "<span>✕: lost</span><span>ellipse: 95 % region of the position covariance</span>"
+        f"<span>✕: lost</span><span>ellipse: {100 * probability:g} % region of the position covariance</span>"
         "<span>line: the track's path so far</span></p>"
     )
 
@@ -226,16 +228,21 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
             "tracks are drawn on the nearest available frame.</p>"
         )
     probability = _gate_probability(run.summary)
-    player_indices = np.unique(
-        np.linspace(0, n_frames - 1, min(MAX_PLAYER_FRAMES, n_frames)).round().astype(int)
-    ).tolist()
     strip_indices = np.unique(np.linspace(0, n_frames - 1, min(STRIP_FRAMES, n_frames)).round().astype(int)).tolist()
-    rendered: dict[int, str] = {}
-    wanted = sorted(set(player_indices) | set(strip_indices))
-    for f in tqdm(wanted, desc="report frames", unit="frame", disable=not progress, leave=False):
+
+    def draw(f: int) -> str:
         (image,) = figures.render_tracked_frames(frames or None, tracks, [f], gate_probability=probability)
-        rendered[f] = _data_uri(figures.png_bytes(image))
-    background = "" if frames else '<p class="note">No frame images in this run: tracks drawn on grey.</p>'
+        return _data_uri(figures.png_bytes(image))
+
+    rendered = {f: draw(f) for f in strip_indices}
+    # the player's size budget, from the size of the frames drawn so far
+    frame_bytes = max(len(uri) for uri in rendered.values())
+    player_count = int(min(MAX_PLAYER_FRAMES, n_frames, max(2, MAX_PLAYER_BYTES // frame_bytes)))
+    player_indices = np.unique(np.linspace(0, n_frames - 1, player_count).round().astype(int)).tolist()
+    todo = [f for f in player_indices if f not in rendered]
+    for f in tqdm(todo, desc="report frames", unit="frame", disable=not progress, leave=False):
+        rendered[f] = draw(f)
+    background = "" if frames else "No frame images in this run: tracks drawn on grey. "
     gate_note = (
         f"Ellipses: the {100 * probability:g} % region of each track's position covariance (upper-left 2×2 block)."
         if tracks.covariances is not None
@@ -264,8 +271,8 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
         for f in strip_indices
     )
     parts.append(f'<h3>Frame strip</h3><div class="strip">{strip}</div>')
-    parts.append(_legend())
-    parts.append(f'<p class="note">{background}{_esc(gate_note)}</p>')
+    parts.append(_legend(probability))
+    parts.append(f'<p class="note">{_esc(background + gate_note)}</p>')
     return "".join(parts)
 
 
@@ -532,7 +539,7 @@ def _section_tables(run: RunFolder) -> str | None:
 
 
 def _section_files(run: RunFolder) -> str | None:
-    if not run.data_files and not run.frame_paths:
+    if set(run.data_files) <= {"summary.json"} and not run.frame_paths:
         return None
     items = [f'<li><a href="{_esc(name)}">{_esc(name)}</a></li>' for name in run.data_files]
     if run.frame_paths:
