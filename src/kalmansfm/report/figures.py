@@ -29,6 +29,7 @@ __all__ = [
     "status_timeline_figure",
     "singular_values_figure",
     "shape_views_figure",
+    "camera_rotation_matrices",
     "camera_rotations",
     "camera_rotation_figure",
     "track_error_per_frame",
@@ -341,6 +342,7 @@ def shape_views_figure(
     points: np.ndarray,
     labels: Sequence[int],
     *,
+    colors: Sequence[str] | None = None,
     truth: np.ndarray | None = None,
 ) -> bytes:
     """The 3D points seen from the front (X–Y), the side (Z–Y), the top (X–Z) and obliquely.
@@ -350,7 +352,7 @@ def shape_views_figure(
     both sets are drawn, the truth as rings.
     """
     pts = np.asarray(points, dtype=float)
-    colors = track_colors(len(pts))
+    colors = list(colors) if colors is not None else track_colors(len(pts))
     everything = pts if truth is None else np.vstack([pts, truth])
     centre = (everything.max(0) + everything.min(0)) / 2
     half = max(float((everything.max(0) - everything.min(0)).max()) / 2, 1e-9) * 1.12
@@ -402,6 +404,13 @@ def _nearest_rotation(matrices: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
+def camera_rotation_matrices(motion: CameraMotion) -> np.ndarray:
+    """(F, 3, 3) world → camera rotations: rows i, j, k = i × j, normalised and snapped to a rotation."""
+    i_rows = motion.i_rows / np.linalg.norm(motion.i_rows, axis=1, keepdims=True)
+    j_rows = motion.j_rows / np.linalg.norm(motion.j_rows, axis=1, keepdims=True)
+    return _nearest_rotation(np.stack([i_rows, j_rows, np.cross(i_rows, j_rows)], axis=1))
+
+
 def camera_rotations(motion: CameraMotion) -> tuple[np.ndarray, np.ndarray]:
     """Each frame's camera rotation relative to the first frame.
 
@@ -417,9 +426,7 @@ def camera_rotations(motion: CameraMotion) -> tuple[np.ndarray, np.ndarray]:
     """
     from scipy.spatial.transform import Rotation
 
-    i_rows = motion.i_rows / np.linalg.norm(motion.i_rows, axis=1, keepdims=True)
-    j_rows = motion.j_rows / np.linalg.norm(motion.j_rows, axis=1, keepdims=True)
-    rotations = _nearest_rotation(np.stack([i_rows, j_rows, np.cross(i_rows, j_rows)], axis=1))
+    rotations = camera_rotation_matrices(motion)
     relative = rotations @ rotations[0].T
     angles = np.degrees(np.unwrap(Rotation.from_matrix(relative).as_euler("xyz"), axis=0))
     total = np.degrees(Rotation.from_matrix(relative).magnitude())
@@ -461,7 +468,7 @@ def track_error_per_frame(positions: np.ndarray, truth: np.ndarray) -> tuple[np.
     return rms, distances
 
 
-def track_error_figure(positions: np.ndarray, truth: np.ndarray, track_ids: Sequence[int]) -> bytes:
+def track_error_figure(positions: np.ndarray, truth: np.ndarray) -> bytes:
     """Tracking error against ground truth per frame: RMS over tracks and each track faintly."""
     rms, distances = track_error_per_frame(positions, truth)
     frames = np.arange(len(rms))

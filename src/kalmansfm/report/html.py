@@ -202,7 +202,8 @@ def _section_parameters(run: RunFolder) -> str | None:
 def _legend(probability: float) -> str:
     return (
         '<p class="legend note"><span>● filled: measured</span><span>○ ring: predicted (no measurement)</span>'
-        f"<span>✕: lost</span><span>ellipse: {100 * probability:g} % region of the position covariance</span>"
+        f"<span>✕: lost</span><span>ellipse: {100 * probability:g} % region of the position covariance "
+        "(upper-left 2×2 block of the state covariance)</span>"
         "<span>line: the track's path so far</span></p>"
     )
 
@@ -243,11 +244,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
     for f in tqdm(todo, desc="report frames", unit="frame", disable=not progress, leave=False):
         rendered[f] = draw(f)
     background = "" if frames else "No frame images in this run: tracks drawn on grey. "
-    gate_note = (
-        f"Ellipses: the {100 * probability:g} % region of each track's position covariance (upper-left 2×2 block)."
-        if tracks.covariances is not None
-        else "tracks.npz holds no covariances, so no gates are drawn."
-    )
+    gate_note = "" if tracks.covariances is not None else "tracks.npz holds no covariances, so no gates are drawn."
     if len(player_indices) > 1:
         payload = json.dumps([{"frame": f, "src": rendered[f]} for f in player_indices])
         stride_note = (
@@ -272,7 +269,8 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
     )
     parts.append(f'<h3>Frame strip</h3><div class="strip">{strip}</div>')
     parts.append(_legend(probability))
-    parts.append(f'<p class="note">{_esc(background + gate_note)}</p>')
+    if background or gate_note:
+        parts.append(f'<p class="note">{_esc(background + gate_note)}</p>')
     return "".join(parts)
 
 
@@ -373,6 +371,16 @@ def _section_factorization(run: RunFolder) -> str | None:
     return "".join(parts) or None
 
 
+def _colors_of(run: RunFolder, track_ids: np.ndarray) -> list[str]:
+    """The colour each track has in the drawings of the sequence (by its column in tracks.npz)."""
+    if run.tracks is None:
+        return figures.track_colors(len(track_ids))
+    palette = figures.track_colors(len(run.tracks.track_ids))
+    column_of = {int(t): k for k, t in enumerate(run.tracks.track_ids)}
+    grey = "#7f7f7f"
+    return [palette[column_of[int(t)]] if int(t) in column_of else grey for t in track_ids]
+
+
 def _shape_payload(run: RunFolder, aligned_truth: np.ndarray | None) -> dict[str, Any]:
     structure = run.structure
     centre = structure.points.mean(axis=0)
@@ -381,19 +389,15 @@ def _shape_payload(run: RunFolder, aligned_truth: np.ndarray | None) -> dict[str
     payload: dict[str, Any] = {
         "points": np.round(points, 6).tolist(),
         "labels": structure.track_ids.tolist(),
-        "colors": figures.track_colors(len(points)),
+        "colors": _colors_of(run, structure.track_ids),
         "radius": radius,
         "truth": None if aligned_truth is None else np.round(aligned_truth - centre, 6).tolist(),
         "cameras": [],
         "camera_frames": [],
     }
     if run.motion is not None and len(run.motion.frames):
-        motion = run.motion
-        i_rows = motion.i_rows / np.linalg.norm(motion.i_rows, axis=1, keepdims=True)
-        j_rows = motion.j_rows / np.linalg.norm(motion.j_rows, axis=1, keepdims=True)
-        cameras = figures._nearest_rotation(np.stack([i_rows, j_rows, np.cross(i_rows, j_rows)], axis=1))
-        payload["cameras"] = np.round(cameras, 6).tolist()
-        payload["camera_frames"] = motion.frames.tolist()
+        payload["cameras"] = np.round(figures.camera_rotation_matrices(run.motion), 6).tolist()
+        payload["camera_frames"] = run.motion.frames.tolist()
     return payload
 
 
@@ -453,7 +457,11 @@ def _section_shape(run: RunFolder) -> str | None:
         )
         parts.append(
             _figure(
-                figures.shape_views_figure(run.structure.points, run.structure.track_ids.tolist()),
+                figures.shape_views_figure(
+                    run.structure.points,
+                    run.structure.track_ids.tolist(),
+                    colors=_colors_of(run, run.structure.track_ids),
+                ),
                 f"The {len(run.structure.points)} recovered 3D points from four viewpoints (Y down, as in the image).",
             )
         )
@@ -489,9 +497,7 @@ def _section_ground_truth(run: RunFolder) -> str | None:
         parts.append("<h3>Tracking error</h3>" + _table(["", "value"], facts))
         parts.append(
             _figure(
-                figures.track_error_figure(
-                    run.tracks.positions, run.ground_truth_tracks, run.tracks.track_ids.tolist()
-                ),
+                figures.track_error_figure(run.tracks.positions, run.ground_truth_tracks),
                 "Distance between each track's estimate and the true image position per frame (faint lines, "
                 "one per track) and their RMS (black); frames where the point is not visible are left out.",
             )
@@ -514,7 +520,7 @@ def _section_ground_truth(run: RunFolder) -> str | None:
             )
         parts.append(
             _figure(
-                figures.shape_views_figure(aligned, ids.tolist(), truth=truth),
+                figures.shape_views_figure(aligned, ids.tolist(), colors=_colors_of(run, ids), truth=truth),
                 "Recovered points after the best similarity transform onto the ground truth (dots) and the "
                 "ground truth (rings).",
             )

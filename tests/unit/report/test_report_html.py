@@ -139,8 +139,16 @@ def test_out_name_must_be_a_file_name(tmp_path):
         build_report(tmp_path, out_name="../escape.html")
 
 
+def _tracks_and_frames_only(run):
+    """Drop the files whose sections need Matplotlib figures, to keep a test quick."""
+    for name in ("structure.csv", "motion.csv", "ground_truth_tracks.csv", "ground_truth_points.csv", "summary.json"):
+        (run / name).unlink()
+    (run / "summary.json").write_text(json.dumps({"input": "fake"}))
+    return run
+
+
 def test_broken_optional_file_raises_and_keeps_the_old_report(tmp_path):
-    run = write_fake_run(tmp_path / "run")
+    run = _tracks_and_frames_only(write_fake_run(tmp_path / "run"))
     old = build_report(run).read_text()
     np.savez(run / "tracks.npz", positions=np.zeros((3, 2)), status=np.zeros(3), track_ids=np.zeros(3))
     with pytest.raises(InvalidInputError, match=r"tracks\.npz: positions must have shape"):
@@ -240,7 +248,7 @@ def test_track_error_per_frame_is_rms_over_comparable_tracks():
 def test_player_is_subsampled_to_stay_within_its_size_budget(tmp_path, monkeypatch):
     import kalmansfm.report.html as report_html
 
-    run = write_fake_run(tmp_path / "run")
+    run = _tracks_and_frames_only(write_fake_run(tmp_path / "run"))
     one_frame = len(json.loads(re.search(r'id="player-frames">(.*?)</script>', build_report(run).read_text(), re.S)
                                .group(1))[0]["src"])
     monkeypatch.setattr(report_html, "MAX_PLAYER_BYTES", int(3.5 * one_frame))  # frame sizes differ a little
@@ -248,3 +256,17 @@ def test_player_is_subsampled_to_stay_within_its_size_budget(tmp_path, monkeypat
     frames = json.loads(re.search(r'id="player-frames">(.*?)</script>', document, re.S).group(1))
     assert [f["frame"] for f in frames] == [0, 4, 7]
     assert "of 8)" in document  # the player says it shows a subset
+
+
+def test_shape_view_keeps_track_colours_and_truth_order_when_rows_are_shuffled(tmp_path):
+    run = write_fake_run(tmp_path / "run")
+    lines = (run / "structure.csv").read_text().splitlines()
+    (run / "structure.csv").write_text("\n".join([lines[0], *reversed(lines[1:])]) + "\n")
+    document = build_report(run).read_text()
+    payload = json.loads(re.search(r'id="shape-data">(.*?)</script>', document, re.S).group(1))
+    assert payload["labels"] == list(reversed(TRACK_IDS.tolist()))
+    expected_colours = dict(zip(TRACK_IDS.tolist(), ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"]))
+    assert payload["colors"] == [expected_colours[t] for t in payload["labels"]]
+    # the aligned truth of each point lies next to it (recovered = 14 x truth + 0.2 px noise)
+    distances = np.linalg.norm(np.array(payload["truth"]) - np.array(payload["points"]), axis=1)
+    assert distances.max() < 1.0
