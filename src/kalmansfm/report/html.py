@@ -246,7 +246,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
     background = "" if frames else "No frame images in this run: tracks drawn on grey. "
     gate_note = "" if tracks.covariances is not None else "tracks.npz holds no covariances, so no gates are drawn."
     if len(player_indices) > 1:
-        payload = json.dumps([{"frame": f, "src": rendered[f]} for f in player_indices])
+        payload = json.dumps([{"frame": f, "src": rendered[f]} for f in player_indices], allow_nan=False)
         stride_note = (
             f" (every {n_frames / len(player_indices):.1f}th frame of {n_frames})"
             if len(player_indices) < n_frames
@@ -433,7 +433,7 @@ def _section_shape(run: RunFolder) -> str | None:
             order = np.argsort(np.argsort(run.structure.track_ids))
             recovered, truth, _ = matched
             aligned_truth = _best_alignment(truth, recovered)[0][order]
-        payload = json.dumps(_shape_payload(run, aligned_truth))
+        payload = json.dumps(_shape_payload(run, aligned_truth), allow_nan=False)
         truth_toggle = (
             '<label><input id="view3d-truth" type="checkbox" checked> ground truth (rings, aligned)</label>'
             if aligned_truth is not None

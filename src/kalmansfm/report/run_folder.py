@@ -213,17 +213,31 @@ def _read_csv_columns(path: Path, columns: tuple[str, ...]) -> dict[str, np.ndar
     return {c: np.asarray(v, dtype=float) for c, v in values.items()}
 
 
-def _read_points(path: Path) -> PointTable:
+def _read_points(path: Path) -> PointTable | None:
+    """The finite rows (a point that could not be recovered may be NaN); None if there are none."""
     cols = _read_csv_columns(path, ("track_id", "X", "Y", "Z"))
-    return PointTable(cols["track_id"].astype(int), np.column_stack([cols["X"], cols["Y"], cols["Z"]]))
+    points = np.column_stack([cols["X"], cols["Y"], cols["Z"]])
+    keep = np.isfinite(points).all(axis=1)
+    if not keep.any():
+        return None
+    return PointTable(cols["track_id"][keep].astype(int), points[keep])
 
 
-def _read_motion(path: Path) -> CameraMotion:
+def _read_motion(path: Path) -> CameraMotion | None:
+    """The frames with finite, non-zero camera rows; None if there are none."""
     names = ("frame", "i_x", "i_y", "i_z", "j_x", "j_y", "j_z", "t_x", "t_y")
     cols = _read_csv_columns(path, names)
     i_rows = np.column_stack([cols["i_x"], cols["i_y"], cols["i_z"]])
     j_rows = np.column_stack([cols["j_x"], cols["j_y"], cols["j_z"]])
-    return CameraMotion(cols["frame"].astype(int), i_rows, j_rows, np.column_stack([cols["t_x"], cols["t_y"]]))
+    translations = np.column_stack([cols["t_x"], cols["t_y"]])
+    keep = (
+        np.isfinite(np.hstack([i_rows, j_rows, translations])).all(axis=1)
+        & (np.linalg.norm(i_rows, axis=1) > 0)
+        & (np.linalg.norm(np.cross(i_rows, j_rows), axis=1) > 0)
+    )
+    if not keep.any():
+        return None
+    return CameraMotion(cols["frame"][keep].astype(int), i_rows[keep], j_rows[keep], translations[keep])
 
 
 def _read_ground_truth_tracks(path: Path, tracks: TrackArrays) -> np.ndarray:

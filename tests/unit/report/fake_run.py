@@ -70,6 +70,8 @@ def write_fake_run(
     covariances[..., 0, 0] = covariances[..., 1, 1] = variances
     covariances[..., 2, 2] = covariances[..., 3, 3] = 1.0
     covariances[..., 0, 1] = covariances[..., 1, 0] = 0.6 * variances * (TRACK_IDS == 1)  # one tilted gate
+    covariances[7, 4] = np.nan  # no estimate once the track is gone
+    states[7, 4] = np.nan
     np.savez(
         folder / "tracks.npz",
         positions=positions,

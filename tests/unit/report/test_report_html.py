@@ -270,3 +270,21 @@ def test_shape_view_keeps_track_colours_and_truth_order_when_rows_are_shuffled(t
     # the aligned truth of each point lies next to it (recovered = 14 x truth + 0.2 px noise)
     distances = np.linalg.norm(np.array(payload["truth"]) - np.array(payload["points"]), axis=1)
     assert distances.max() < 1.0
+
+
+def test_unrecovered_points_and_degenerate_camera_rows_are_left_out(tmp_path):
+    run = write_fake_run(tmp_path / "run")
+    with (run / "structure.csv").open("a") as handle:
+        handle.write("9,nan,nan,nan\n")
+    with (run / "motion.csv").open("a") as handle:
+        handle.write("8,0,0,0,0,0,0,32,24\n")
+    document = build_report(run).read_text()
+    assert_self_contained(document)
+    payload = re.search(r'id="shape-data">(.*?)</script>', document, re.S).group(1)
+
+    def reject(constant):
+        raise AssertionError(f"{constant} in the 3D view's JSON")
+
+    shape = json.loads(payload, parse_constant=reject)
+    assert shape["labels"] == TRACK_IDS.tolist()
+    assert shape["camera_frames"] == list(range(N_FRAMES))
