@@ -312,7 +312,7 @@ def _section_tracks(run: RunFolder) -> str | None:
             ("rms_error_px", "RMS error vs ground truth (px)"),
             ("within_2px", "fraction within 2 px of ground truth"),
         ]
-        rows = [(label, tracking[key]) for key, label in keys if key in tracking]
+        rows = [(label, tracking[key]) for key, label in keys if tracking.get(key) is not None]
         if rows:
             parts.append(_table(["", "value"], rows))
     if per_track:
