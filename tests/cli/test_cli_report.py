@@ -1,0 +1,59 @@
+import importlib.util
+import sys
+import json
+from pathlib import Path
+
+import pytest
+
+import kalmansfm.cli.main as cli
+
+
+def _load_fixture_module(name):
+    path = Path(__file__).parents[1] / "unit" / "report" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"_report_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+fake_run = _load_fixture_module("fake_run")
+
+
+@pytest.fixture(autouse=True)
+def only_report_subcommand(monkeypatch):
+    # other subcommands are built on other branches; this test needs only 'report'
+    monkeypatch.setattr(cli, "SUBCOMMANDS", ["report"])
+
+
+def test_report_rebuilds_the_html_and_prints_its_path(tmp_path, capsys):
+    run = fake_run.write_fake_run(tmp_path / "run")
+    assert cli.main(["report", str(run), "--quiet"]) == 0
+    out, err = capsys.readouterr()
+    assert out.strip() == str(run / "report.html")
+    assert err == ""
+    assert "kalmansfm report" in (run / "report.html").read_text()
+
+
+def test_open_hands_a_file_uri_to_the_browser(tmp_path, capsys, monkeypatch):
+    (tmp_path / "summary.json").write_text(json.dumps({"input": "x"}))
+    opened = []
+    monkeypatch.setattr("webbrowser.open", lambda url, *a, **k: opened.append(url) or True)
+    assert cli.main(["report", str(tmp_path), "--open", "--quiet"]) == 0
+    assert opened == [(tmp_path / "report.html").resolve().as_uri()]
+
+
+def test_missing_summary_exits_2_with_one_line(tmp_path, capsys):
+    assert cli.main(["report", str(tmp_path)]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.count("\n") == 1 and "summary.json: not found" in err
+    assert not (tmp_path / "report.html").exists()
+
+
+def test_help_describes_the_folder(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["report", "--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert "DIR" in out and "--open" in out and "summary.json" in out
