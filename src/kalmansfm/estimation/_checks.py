@@ -48,3 +48,18 @@ def check_covariance(name: str, cov: np.ndarray, *, allow_singular: bool = False
         raise InvalidInputError(
             f"{name} must be {kind}{which}; smallest eigenvalue {np.atleast_1d(eig_min)[tuple(where)]:.6g}"
         )
+
+
+def check_positive(name: str, value: object, unit: str = "") -> float:
+    """Return ``value`` as a float or raise unless it is a finite number > 0.
+
+    ``unit`` (e.g. ``"pixels"``) is shown in the message.
+    """
+    shown = f" ({unit})" if unit else ""
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a number{shown}; got {value!r}") from None
+    if not np.isfinite(number) or number <= 0:
+        raise InvalidInputError(f"{name} must be finite and > 0{shown}; got {number}")
+    return number

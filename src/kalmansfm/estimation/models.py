@@ -11,8 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InvalidInputError
-from ._checks import as_float_array, check_shape
+from ._checks import as_float_array, check_positive, check_shape
 
 __all__ = ["LinearGaussianModel", "constant_velocity_2d", "initial_state"]
 
@@ -81,8 +80,7 @@ def constant_velocity_2d(
         "dt": dt,
     }
     for name, value in values.items():
-        if not np.isfinite(value) or value <= 0:
-            raise InvalidInputError(f"{name} must be a positive number; got {value}")
+        check_positive(name, value)
     F = np.eye(4)
     F[0, 2] = F[1, 3] = dt
     H = np.eye(2, 4)

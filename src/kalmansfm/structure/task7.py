@@ -20,6 +20,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..scenes.moving_camera import report_path
 from .landmark import METHODS, estimate_landmarks, project
+from ..estimation._checks import check_positive
 from .triangulation import check_focal
 
 __all__ = ["DEFAULT_FOCAL", "DEFAULT_PIXEL_NOISE_STD", "Task7Result", "simulate_task7", "simulate_observations"]
@@ -65,14 +66,8 @@ class Task7Result:
 
 
 def check_pixel_noise(pixel_noise_std: object) -> float:
-    """Return the noise as a float or raise unless it is finite and > 0."""
-    try:
-        s = float(pixel_noise_std)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"pixel_noise_std must be a number (pixels); got {pixel_noise_std!r}") from None
-    if not np.isfinite(s) or s <= 0:
-        raise InvalidInputError(f"pixel_noise_std must be finite and > 0 (pixels); got {s}")
-    return s
+    """Return ``pixel_noise_std`` as a float or raise unless it is finite and > 0 (pixels)."""
+    return check_positive("pixel_noise_std", pixel_noise_std, "pixels")
 
 
 def simulate_observations(

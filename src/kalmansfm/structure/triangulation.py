@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..estimation._checks import as_float_array, check_finite
+from ..estimation._checks import as_float_array, check_finite, check_positive
 
 __all__ = [
     "TRIANGULATION_OK",
@@ -115,14 +115,8 @@ def _image_noise_variances(pixel_std: object, L: int) -> np.ndarray:
 
 
 def check_focal(focal: object) -> float:
-    """Return ``focal`` as a float or raise unless it is finite and > 0."""
-    try:
-        f = float(focal)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"focal must be a number (pixels); got {focal!r}") from None
-    if not np.isfinite(f) or f <= 0:
-        raise InvalidInputError(f"focal must be finite and > 0 (pixels); got {f}")
-    return f
+    """Return ``focal`` as a float or raise unless it is finite and > 0 (pixels)."""
+    return check_positive("focal", focal, "pixels")
 
 
 def check_motion(rotation: object, translation: object, *, what: str = "") -> tuple[np.ndarray, np.ndarray]:
