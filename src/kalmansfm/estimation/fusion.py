@@ -93,9 +93,10 @@ def _normalize(measurements: object, covariances: object, rotations: object, tra
     if np.isnan(p[0]).any():
         raise InvalidInputError("measurements[0] must be finite: the first measurement initialises the estimate")
     rows_present = ~np.isnan(p).any(axis=-1)
-    check_covariance("covariances", R[rows_present])
     # A missing measurement's covariance is never used; give it a harmless value.
     R = np.where(rows_present[..., None, None], R, np.eye(d))
+    # Checked in the caller's layout so that the index in an error message is the caller's index.
+    check_covariance("covariances", R if layout == "many" else R[:, 0])
     if rotations is None:
         C = np.broadcast_to(np.eye(d), (K - 1, d, d))
     else:
@@ -114,7 +115,8 @@ def _normalize(measurements: object, covariances: object, rotations: object, tra
         if b.shape == (d,):
             b = np.broadcast_to(b, (K - 1, d))
         if b.shape != (K - 1, d):
-            raise InvalidInputError(f"translations must have shape ({K - 1}, {d}) or ({d},); got {b.shape}")
+            expected = f"({K - 1},) or a scalar" if layout == "scalar" else f"({K - 1}, {d}) or ({d},)"
+            raise InvalidInputError(f"translations must have shape {expected}; got {b.shape}")
         check_finite("translations", b)
     return _Normalized(p, R, C, b, layout)
 
