@@ -179,7 +179,7 @@ def factorize(
     if complete and uniform:
         motion_aff, shape_aff, translation, sv = _closed_form(x[np.ix_(use_f, use_p)], rng)
         method, iterations = "svd", 0
-        f_ok, p_ok = np.ones(use_f.size, bool), np.ones(use_p.size, bool)
+        f_ok, p_ok = np.ones(int(use_f.sum()), bool), np.ones(int(use_p.sum()), bool)
     else:
         motion_aff, shape_aff, translation, iterations, f_ok, p_ok = _weighted_als(
             x[np.ix_(use_f, use_p)], w[np.ix_(use_f, use_p)], observed[np.ix_(use_f, use_p)], max_iterations, tol, notes
