@@ -95,7 +95,7 @@ class Reconstruction:
 
     def reprojected(self) -> np.ndarray:
         """(F, P, 2) image positions predicted by the model, M_f S_p + t_f."""
-        return np.einsum("fij,pj->fpi", self.motion, self.points) + self.translation[:, None, :]
+        return (np.matmul(self.motion, self.points.T) + self.translation[:, :, None]).transpose(0, 2, 1)
 
     def mirrored(self) -> Reconstruction:
         """The depth-reversed solution, which explains the tracks exactly as well.
@@ -170,23 +170,30 @@ def factorize(
     """
     x, w = _validate(positions, weights)
     frames, points = x.shape[:2]
-    observed = np.all(np.isfinite(x), axis=2) & np.any(w > 0, axis=2)
+    observed = ~np.isnan(x).any(axis=2)
+    if w is not None:
+        observed &= (w > 0).any(axis=2)
     notes: list[str] = []
     use_f, use_p = _usable(observed, notes)
+    everything = bool(use_f.all() and use_p.all())
 
-    complete = bool(observed[np.ix_(use_f, use_p)].all())
-    uniform = bool(np.ptp(w[np.ix_(use_f, use_p)][observed[np.ix_(use_f, use_p)]]) == 0.0)
+    def subset(a: np.ndarray) -> np.ndarray:
+        return a if everything else a[np.ix_(use_f, use_p)]
+
+    xs, obs = subset(x), subset(observed)
+    complete = bool(obs.all())
+    uniform = w is None or bool(np.ptp(subset(w)[obs]) == 0.0)
     if complete and uniform:
-        motion_aff, shape_aff, translation, sv = _closed_form(x[np.ix_(use_f, use_p)], rng)
+        motion_aff, shape_aff, translation, sv = _closed_form(xs, rng)
         method, iterations = "svd", 0
         f_ok, p_ok = np.ones(int(use_f.sum()), bool), np.ones(int(use_p.sum()), bool)
     else:
+        ws = np.ones_like(xs) if w is None else subset(w)
         motion_aff, shape_aff, translation, iterations, f_ok, p_ok = _weighted_als(
-            x[np.ix_(use_f, use_p)], w[np.ix_(use_f, use_p)], observed[np.ix_(use_f, use_p)], max_iterations, tol, notes
+            xs, ws, obs, max_iterations, tol, notes
         )
         method = "als"
-        sv = _completed_singular_values(x[np.ix_(use_f, use_p)], observed[np.ix_(use_f, use_p)],
-                                        motion_aff, shape_aff, translation, f_ok, p_ok, rng)
+        sv = _completed_singular_values(xs, obs, motion_aff, shape_aff, translation, f_ok, p_ok, rng)
         if not f_ok.all():
             notes.append(f"{int((~f_ok).sum())} frame(s) not linked to the reconstructed points: left NaN")
         if not p_ok.all():
@@ -224,10 +231,12 @@ def factorize(
     full_translation[f_index] = translation[f_ok]
     full_points[p_index] = shape[p_ok]
 
-    predicted = np.einsum("fij,pj->fpi", full_motion, full_points) + full_translation[:, None, :]
-    distance = np.sqrt(np.sum((predicted - x) ** 2, axis=2))
-    residuals = np.where(observed, distance, np.nan)
-    used = observed & np.isfinite(residuals)
+    # Reprojection M_f S_p + t_f as one batched matmul, (F, 2, 3) @ (3, P) -> (F, 2, P).
+    predicted = np.matmul(full_motion, full_points.T) + full_translation[:, :, None]
+    difference = predicted.transpose(0, 2, 1) - x
+    residuals = np.sqrt(np.einsum("fpc,fpc->fp", difference, difference))
+    used = observed & ~np.isnan(residuals)
+    residuals[~used] = np.nan
     residual_rms = float(np.sqrt(np.mean(residuals[used] ** 2)))
     return Reconstruction(
         points=full_points,
@@ -310,7 +319,7 @@ def _quadratic_terms(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
-def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray]:
+def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray | None]:
     try:
         x = np.asarray(positions, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -324,7 +333,7 @@ def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarra
     if frames < 3 or points < 4:
         raise NotEnoughDataError(f"factorize needs >= 3 frames and >= 4 points; got {frames} frames, {points} points")
     if weights is None:
-        return x, np.ones_like(x)
+        return x, None
     try:
         w = np.asarray(weights, dtype=np.float64)
     except (TypeError, ValueError) as exc:
