@@ -21,7 +21,7 @@ from .. import __version__
 from ..errors import KalmanSfmError
 
 # Order shown in --help.
-SUBCOMMANDS = ["track", "report", "tables", "consistency", "scene"]
+SUBCOMMANDS = ["track", "reconstruct", "report", "tables", "consistency", "scene"]
 
 log = logging.getLogger("kalmansfm")
 
