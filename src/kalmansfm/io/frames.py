@@ -1,0 +1,222 @@
+"""Frames in: a folder of images, a glob pattern, or a video file, as grey arrays.
+
+:func:`read_frames` checks what it can up front (the path exists, the folder holds
+images, there are enough of them) and returns a :class:`FrameSource` that decodes
+the frames lazily, one at a time, in natural order (``frame2`` before ``frame10``).
+Decoding problems found later (a truncated file, a frame of another size) raise
+:class:`~kalmansfm.errors.InvalidInputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import glob as globbing
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InvalidInputError, NotEnoughDataError
+
+__all__ = ["IMAGE_EXTENSIONS", "FrameSource", "list_image_files", "natural_key", "read_frames"]
+
+IMAGE_EXTENSIONS = frozenset({".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff"})
+MIN_FRAMES = 3
+
+
+def natural_key(name: str) -> list[object]:
+    """Sort key that orders embedded numbers by value: ``frame2`` < ``frame10``.
+
+    Examples
+    --------
+    >>> sorted(["f10.png", "f2.png", "f1.png"], key=natural_key)
+    ['f1.png', 'f2.png', 'f10.png']
+    """
+    return [(0, int(part), "") if part.isdigit() else (1, 0, part.lower()) for part in re.split(r"(\d+)", name) if part]
+
+
+def _is_image_name(path: Path) -> bool:
+    return path.suffix.lower() in IMAGE_EXTENSIONS
+
+
+def list_image_files(folder: str | os.PathLike[str]) -> list[Path]:
+    """Image files directly inside ``folder`` (by extension, any case), in natural order.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> for name in ["b10.PNG", "b2.png", "notes.txt"]:
+    ...     _ = (d / name).write_bytes(b"")
+    >>> [p.name for p in list_image_files(d)]
+    ['b2.png', 'b10.PNG']
+    """
+    folder = Path(folder)
+    files = [p for p in folder.iterdir() if p.is_file() and _is_image_name(p)]
+    return sorted(files, key=lambda p: natural_key(p.name))
+
+
+def _decode_image(path: Path) -> np.ndarray:
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise InvalidInputError(f"cannot read image {path}: {exc.strerror or exc}") from None
+    image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    if image is None:
+        raise InvalidInputError(f"{path} is not a readable image (empty, truncated or not an image)")
+    return image
+
+
+@dataclass(frozen=True)
+class FrameSource:
+    """Lazily decoded grey frames (uint8, (H, W)), iterable any number of times.
+
+    Attributes
+    ----------
+    description : the input as the user gave it.
+    files : the image files in order, or empty for a video.
+    video : the video file, or None.
+    count : number of frames when known in advance (exact for images; the
+        container's claim for a video), else None.
+    """
+
+    description: str
+    files: tuple[Path, ...] = ()
+    video: Path | None = None
+    count: int | None = None
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        if self.video is not None:
+            yield from _video_frames(self.video)
+            return
+        shape = None
+        for path in self.files:
+            image = _decode_image(path)
+            if shape is None:
+                shape = image.shape
+            elif image.shape != shape:
+                raise InvalidInputError(
+                    f"{path} is {image.shape[1]}×{image.shape[0]} but {self.files[0].name} is "
+                    f"{shape[1]}×{shape[0]}; all frames must have the same size"
+                )
+            yield image
+
+    def __len__(self) -> int:
+        if self.count is None:
+            raise TypeError("the number of frames of this video is not known in advance")
+        return self.count
+
+
+def _video_frames(path: Path) -> Iterator[np.ndarray]:
+    capture = cv2.VideoCapture(str(path))
+    produced = 0
+    try:
+        if capture.isOpened():
+            while True:
+                ok, frame = capture.read()
+                if not ok:
+                    break
+                produced += 1
+                yield frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    finally:
+        capture.release()
+    if produced:
+        return
+    yield from _video_frames_pyav(path)
+
+
+def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
+    try:
+        import av
+    except ImportError:
+        raise InvalidInputError(f"{path} could not be decoded as a video by OpenCV (and PyAV is not installed)") from None
+    produced = 0
+    try:
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                produced += 1
+                yield frame.to_ndarray(format="gray")
+    except (av.error.FFmpegError, ValueError, IndexError) as exc:  # type: ignore[attr-defined]
+        if not produced:
+            raise InvalidInputError(f"{path} is not a decodable video or image ({exc})") from None
+        raise InvalidInputError(f"{path}: video decoding failed after frame {produced - 1} ({exc})") from None
+    if not produced:
+        raise InvalidInputError(f"{path} is not a decodable video (no frames)")
+
+
+def _video_count(path: Path) -> int | None:
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            return None
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        return count if count > 0 else None
+    finally:
+        capture.release()
+
+
+def read_frames(source: str | os.PathLike[str], min_frames: int = MIN_FRAMES) -> FrameSource:
+    """Frames from a folder of images, a glob pattern or a video file.
+
+    Parameters
+    ----------
+    source : folder (image files taken by extension — png, jpg, jpeg, pgm, ppm,
+        bmp, tif, tiff, any case — other files ignored; natural order), glob
+        pattern (e.g. ``"shots/img_*.png"``), or video file (OpenCV, else PyAV).
+    min_frames : fewer frames than this is an error (checked here for images).
+
+    Returns
+    -------
+    FrameSource
+        Iterating yields (H, W) uint8 grey frames; colour is converted to grey.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing path, no images, a file that is not an image or video.
+    NotEnoughDataError
+        Fewer than ``min_frames`` images.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> for k in range(3):
+    ...     _ = cv2.imwrite(str(d / f"f{k}.png"), np.full((4, 6, 3), 10 * k, np.uint8))
+    >>> frames = read_frames(d)
+    >>> frames.count, [int(f[0, 0]) for f in frames], next(iter(frames)).shape
+    (3, [0, 10, 20], (4, 6))
+    """
+    text = os.fspath(source)
+    path = Path(text)
+    if path.is_dir():
+        files = list_image_files(path)
+        if not files:
+            raise InvalidInputError(
+                f"folder {path} holds no image files (looked for {', '.join(sorted(IMAGE_EXTENSIONS))})"
+            )
+        description = str(path)
+    elif path.is_file():
+        if _is_image_name(path):
+            raise NotEnoughDataError(f"{path} is a single image; tracking needs at least {min_frames} frames")
+        # A video: check that something can decode it before promising frames.
+        first = next(iter(_video_frames(path)), None)
+        if first is None:
+            raise InvalidInputError(f"{path} is not a decodable video")
+        return FrameSource(description=str(path), video=path, count=_video_count(path))
+    elif any(ch in text for ch in "*?["):
+        files = sorted(
+            (Path(p) for p in globbing.glob(text) if Path(p).is_file() and _is_image_name(Path(p))),
+            key=lambda p: natural_key(str(p)),
+        )
+        if not files:
+            raise InvalidInputError(f"the pattern {text!r} matches no image files")
+        description = text
+    else:
+        raise InvalidInputError(f"input {text} does not exist (expected a folder of images, a glob or a video)")
+    if len(files) < min_frames:
+        raise NotEnoughDataError(f"{description} holds {len(files)} image(s); tracking needs at least {min_frames} frames")
+    return FrameSource(description=description, files=tuple(files), count=len(files))

@@ -1,0 +1,581 @@
+"""The Kalman-gated template tracker: predict, search the gate, update — for all tracks at once.
+
+Per frame, with one batched :class:`~kalmansfm.estimation.KalmanFilter` holding every
+live track:
+
+1. predict s⁻ = Φ s, Σ⁻ = Φ Σ Φᵀ + Q;
+2. search each track's template inside its gate ellipse
+   (p - p⁻)ᵀ (Σ⁻_pos)⁻¹ (p - p⁻) ≤ c² (:func:`~kalmansfm.tracking.matching.match_templates`);
+3. accept the refined best match as the measurement z when its dissimilarity is
+   below ``max_dissimilarity``; otherwise the row of z is NaN and the track coasts;
+4. update; a track that coasted ``max_misses`` frames in a row and misses again
+   is lost.
+
+A new track (from ``points`` or from the detector) starts as in the report: its
+template is located in the next frame by an SSD search around its first position
+(a gate of Σ0's position block around it), and the filter starts there with
+s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀] and Σ0.
+
+Template policy ("anchored", the default): every track keeps its *anchor*, the
+patch cut at its first position, and a *current* template.  Each frame the current
+template is searched in the gate; the anchor is then searched in a small box around
+that match.  If the anchor still matches well there, its position is the
+measurement and the current template is re-cut at it, so the position does not
+drift.  If the anchor no longer matches (the view has changed), the current
+template's match is used (and the current template re-cut there), and once that has
+lasted ``anchor_patience`` frames the anchor is replaced by the current template.
+Drift can then only accumulate at these rare anchor renewals, not at every frame.
+The anchor is trusted only when it matches very well (``anchor_dissimilarity``),
+because the peak of a template that matches poorly is biased.  ``template_policy="first"`` uses the anchor only,
+``"last"`` re-cuts the template at every match (drifts).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import InvalidInputError, NotEnoughDataError
+from ..estimation.kalman import KalmanFilter
+from ..estimation.models import LinearGaussianModel, constant_velocity_2d
+from .detect import detect_corners
+from .matching import (
+    SCORES,
+    PreparedFrame,
+    gate_radius_for_probability,
+    match_templates,
+    prepare_frame,
+    sample_patches,
+)
+from .tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks
+
+__all__ = ["FrameEstimate", "Tracker", "track"]
+
+TEMPLATE_POLICIES = ("anchored", "first", "last")
+DEFAULT_MAX_DISSIMILARITY = {"ssd": 0.5, "ncc": 0.3}
+# The anchor must match much better than a mere "acceptable" match to be trusted as the
+# drift-free position (a poorly matching template's peak is biased); tuned on cmu_house.
+DEFAULT_ANCHOR_DISSIMILARITY = {"ssd": 0.15, "ncc": 0.05}
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """What the tracker knows after one frame (returned by :meth:`Tracker.feed`).
+
+    Attributes
+    ----------
+    frame_index : index of the frame just processed.
+    track_ids : (k,) ids of the tracks present in this frame (including the ones lost in it).
+    positions : (k, 2) posterior (or predicted) positions, NaN for tracks lost in this frame.
+    status : (k,) int8 codes (1 measured, 2 predicted, 3 lost).
+    """
+
+    frame_index: int
+    track_ids: np.ndarray
+    positions: np.ndarray
+    status: np.ndarray
+
+
+@dataclass(frozen=True)
+class _FrameRecord:
+    ids: np.ndarray
+    states: np.ndarray
+    covariances: np.ndarray
+    status: np.ndarray
+    scores: np.ndarray
+
+
+def _as_grey(frame: object, index: int) -> np.ndarray:
+    array = np.asarray(frame)
+    if array.ndim == 3 and array.shape[2] in (3, 4):
+        array = array[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR weights as OpenCV
+    if array.ndim != 2:
+        raise InvalidInputError(f"frame {index} must be a 2D grey image (H, W); got shape {array.shape}")
+    if not np.issubdtype(array.dtype, np.number):
+        raise InvalidInputError(f"frame {index} must be numeric; got dtype {array.dtype}")
+    return np.asarray(array, dtype=np.float64)
+
+
+class Tracker:
+    """Streaming Kalman-gated template tracker: feed one frame at a time.
+
+    Parameters
+    ----------
+    points : (P, 2) positions (x, y) to track from the first frame fed, or None to
+        detect corners there.
+    track_ids : optional (P,) integer ids for ``points`` (default 0 … P-1).
+    window : odd side of the square template in pixels.
+    score : ``"ssd"`` or ``"ncc"``.
+    gate_probability : probability that the true position lies in the gate; c² is
+        the χ²₂ quantile (0.95 → c = 2.448).  Ignored when ``gate_radius`` is given.
+    gate_radius : the gate's c directly (Mahalanobis radius).
+    max_misses : a track coasts at most this many consecutive frames; the next miss loses it.
+    max_dissimilarity : a match is accepted when SSD / Σ(T - T̄)² (``ssd``) or
+        1 - NCC (``ncc``) is at most this (default 0.5 for ssd, 0.3 for ncc).
+    template_policy : ``"anchored"`` (default), ``"first"`` or ``"last"`` (module docs).
+    model : the motion model (default :func:`~kalmansfm.models.constant_velocity_2d`).
+    max_features, quality_level, min_distance_px : corner detection settings when
+        ``points`` is None or ``redetect`` is on.
+    redetect : add corners in empty regions every ``redetect_every`` frames, with new ids,
+        up to ``max_features`` live tracks.
+    max_search_radius : the search box never exceeds this half-size in pixels.
+    anchor_dissimilarity : (``"anchored"`` policy) the anchor's match near the current
+        match is trusted when its dissimilarity is at most this (default 0.15 ssd, 0.05 ncc).
+    anchor_patience : (``"anchored"`` policy) after this many frames in a row without a
+        trusted anchor match, the current template becomes the new anchor.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1)
+    >>> import cv2
+    >>> world = cv2.GaussianBlur(rng.uniform(0, 255, (80, 140)), (0, 0), 1.5)
+    >>> frames = [world[10:70, 10 + 2 * k: 90 + 2 * k] for k in range(6)]   # moves 2 px left per frame
+    >>> tracker = Tracker(points=np.array([[40.0, 30.0]]))
+    >>> for f in frames:
+    ...     estimate = tracker.feed(f)
+    >>> np.round(estimate.positions, 1), estimate.status
+    (array([[30., 30.]]), array([1], dtype=int8))
+    """
+
+    def __init__(
+        self,
+        points: object | None = None,
+        *,
+        track_ids: object | None = None,
+        window: int = 11,
+        score: str = "ssd",
+        gate_probability: float = 0.95,
+        gate_radius: float | None = None,
+        max_misses: int = 3,
+        max_dissimilarity: float | None = None,
+        template_policy: str = "anchored",
+        model: LinearGaussianModel | None = None,
+        max_features: int = 200,
+        quality_level: float = 0.01,
+        min_distance_px: float = 10.0,
+        redetect: bool = False,
+        redetect_every: int = 5,
+        max_search_radius: int = 40,
+        anchor_dissimilarity: float | None = None,
+        anchor_patience: int = 4,
+    ) -> None:
+        if int(window) != window or window < 3 or window % 2 == 0:
+            raise InvalidInputError(f"window must be an odd integer >= 3; got {window}")
+        if score not in SCORES:
+            raise InvalidInputError(f"score must be one of {SCORES}; got {score!r}")
+        if template_policy not in TEMPLATE_POLICIES:
+            raise InvalidInputError(f"template_policy must be one of {TEMPLATE_POLICIES}; got {template_policy!r}")
+        if gate_radius is not None:
+            if not (math.isfinite(gate_radius) and gate_radius > 0):
+                raise InvalidInputError(f"gate_radius must be a positive number; got {gate_radius}")
+            self.gate_radius = float(gate_radius)
+        else:
+            self.gate_radius = gate_radius_for_probability(gate_probability)
+        if int(max_misses) != max_misses or max_misses < 0:
+            raise InvalidInputError(f"max_misses must be an integer >= 0; got {max_misses}")
+        if max_search_radius < 2:
+            raise InvalidInputError(f"max_search_radius must be >= 2; got {max_search_radius}")
+        self.window = int(window)
+        self.score = score
+        self.max_misses = int(max_misses)
+        self.max_dissimilarity = (
+            DEFAULT_MAX_DISSIMILARITY[score] if max_dissimilarity is None else float(max_dissimilarity)
+        )
+        self.template_policy = template_policy
+        self.anchor_dissimilarity = (
+            DEFAULT_ANCHOR_DISSIMILARITY[score] if anchor_dissimilarity is None else float(anchor_dissimilarity)
+        )
+        if int(anchor_patience) != anchor_patience or anchor_patience < 1:
+            raise InvalidInputError(f"anchor_patience must be an integer >= 1; got {anchor_patience}")
+        self.anchor_patience = int(anchor_patience)
+        self.model = constant_velocity_2d() if model is None else model
+        self.max_features = int(max_features)
+        self.quality_level = float(quality_level)
+        self.min_distance_px = float(min_distance_px)
+        self.redetect = bool(redetect)
+        self.redetect_every = max(1, int(redetect_every))
+        self.max_search_radius = int(max_search_radius)
+        self.parameters: dict[str, Any] = {
+            "window": self.window,
+            "score": score,
+            "gate_probability": None if gate_radius is not None else float(gate_probability),
+            "gate_radius": self.gate_radius,
+            "max_misses": self.max_misses,
+            "max_dissimilarity": self.max_dissimilarity,
+            "template_policy": template_policy,
+            "anchor_dissimilarity": self.anchor_dissimilarity,
+            "anchor_patience": self.anchor_patience,
+            "max_features": self.max_features,
+            "quality_level": self.quality_level,
+            "min_distance_px": self.min_distance_px,
+            "redetect": self.redetect,
+            "redetect_every": self.redetect_every,
+            "max_search_radius": self.max_search_radius,
+            "process_noise_diagonal": np.diag(self.model.Q).tolist(),
+            "measurement_noise_diagonal": np.diag(self.model.R).tolist(),
+            "initial_covariance_diagonal": np.diag(self.model.P0).tolist(),
+        }
+
+        self._initial_points = None if points is None else self._check_points(points)
+        self._initial_ids = None
+        if track_ids is not None:
+            ids = np.asarray(track_ids)
+            if self._initial_points is None or ids.shape != (len(self._initial_points),):
+                raise InvalidInputError("track_ids must have one integer per point")
+            if len(np.unique(ids)) != len(ids):
+                raise InvalidInputError("track_ids must be unique")
+            self._initial_ids = ids.astype(np.int64)
+
+        self._frame_index = -1
+        self._shape: tuple[int, int] | None = None
+        self._next_id = 0
+        self._records: list[_FrameRecord] = []
+        # Tracks in the filter.
+        self._kf: KalmanFilter | None = None
+        self._ids = np.zeros(0, np.int64)
+        self._templates = np.zeros((0, self.window, self.window))
+        self._anchors = np.zeros((0, self.window, self.window))
+        self._anchor_strikes = np.zeros(0, np.int64)
+        self._misses = np.zeros(0, np.int64)
+        # Tracks started in the previous frame and waiting for their second frame.
+        self._pending_ids = np.zeros(0, np.int64)
+        self._pending_positions = np.zeros((0, 2))
+        self._pending_templates = np.zeros((0, self.window, self.window))
+
+    # -- validation -------------------------------------------------------------
+    @staticmethod
+    def _check_points(points: object) -> np.ndarray:
+        try:
+            arr = np.asarray(points, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"points must be numeric (P, 2) positions; {exc}") from None
+        if arr.ndim != 2 or arr.shape[1] != 2:
+            raise InvalidInputError(f"points must have shape (P, 2) as (x, y); got {arr.shape}")
+        if not np.isfinite(arr).all():
+            row = int(np.argwhere(~np.isfinite(arr))[0, 0])
+            raise InvalidInputError(f"points row {row} is not finite: {arr[row].tolist()}")
+        return arr
+
+    def _check_inside(self, points: np.ndarray) -> None:
+        height, width = self._shape  # type: ignore[misc]
+        outside = (points[:, 0] < 0) | (points[:, 0] > width - 1) | (points[:, 1] < 0) | (points[:, 1] > height - 1)
+        if outside.any():
+            row = int(np.flatnonzero(outside)[0])
+            raise InvalidInputError(
+                f"points row {row} ({points[row, 0]:g}, {points[row, 1]:g}) lies outside the "
+                f"{width}×{height} image (x must be in [0, {width - 1}], y in [0, {height - 1}])"
+            )
+
+    # -- streaming --------------------------------------------------------------
+    @property
+    def n_frames(self) -> int:
+        """Number of frames fed so far."""
+        return self._frame_index + 1
+
+    def feed(self, frame: object) -> FrameEstimate:
+        """Process the next frame and return the estimates for it."""
+        image = _as_grey(frame, self._frame_index + 1)
+        if self._shape is None:
+            self._shape = image.shape  # type: ignore[assignment]
+            if min(image.shape) < self.window:
+                raise InvalidInputError(f"frames of {image.shape[1]}×{image.shape[0]} are smaller than the {self.window}-pixel window")
+        elif image.shape != self._shape:
+            raise InvalidInputError(
+                f"frame {self._frame_index + 1} has size {image.shape[1]}×{image.shape[0]}, "
+                f"but the first frame has {self._shape[1]}×{self._shape[0]}"
+            )
+        self._frame_index += 1
+        if self._frame_index == 0:
+            self._first_frame(image)
+        else:
+            self._next_frame(image)
+        return self._estimate()
+
+    def _first_frame(self, image: np.ndarray) -> None:
+        if self._initial_points is not None:
+            self._check_inside(self._initial_points)
+            points = self._initial_points
+        else:
+            points = detect_corners(
+                image, self.max_features, self.quality_level, self.min_distance_px, border_px=self.window // 2
+            )
+        if self._initial_ids is not None:
+            ids = self._initial_ids
+            self._next_id = int(ids.max()) + 1 if len(ids) else 0
+        else:
+            ids = np.arange(len(points), dtype=np.int64)
+            self._next_id = len(points)
+        self._start_pending(image, points, ids)
+        self._records.append(self._pending_record())
+
+    def _start_pending(self, image: np.ndarray, points: np.ndarray, ids: np.ndarray) -> None:
+        self._pending_ids = np.concatenate([self._pending_ids, ids])
+        self._pending_positions = np.concatenate([self._pending_positions, points])
+        self._pending_templates = np.concatenate([self._pending_templates, sample_patches(image, points, self.window)])
+
+    def _pending_record(self) -> _FrameRecord:
+        n = len(self._pending_ids)
+        states = np.concatenate([self._pending_positions, np.zeros((n, 2))], axis=1)
+        return _FrameRecord(
+            ids=self._pending_ids.copy(),
+            states=states,
+            covariances=np.broadcast_to(self.model.P0, (n, 4, 4)).copy(),
+            status=np.full(n, MEASURED, np.int8),
+            scores=np.zeros(n),
+        )
+
+    def _next_frame(self, image: np.ndarray) -> None:
+        frame = prepare_frame(image, self.window, self.max_search_radius)
+        records: list[_FrameRecord] = []
+        if self._kf is not None and len(self._ids):
+            records.append(self._step_filter(frame))
+        if len(self._pending_ids):
+            records.append(self._start_filter(frame))
+        record = _concatenate_records(records)
+        if self.redetect and self._frame_index % self.redetect_every == 0:
+            new = self._detect_new(frame.image)
+            if len(new):
+                ids = np.arange(self._next_id, self._next_id + len(new), dtype=np.int64)
+                self._next_id += len(new)
+                self._start_pending(frame.image, new, ids)
+                record = _concatenate_records([record, self._pending_record()])
+        self._records.append(record)
+
+    def _detect_new(self, image: np.ndarray) -> np.ndarray:
+        room = self.max_features - len(self._ids)
+        if room <= 0:
+            return np.zeros((0, 2))
+        occupied = self._kf.x[:, :2] if self._kf is not None and len(self._ids) else np.zeros((0, 2))
+        return detect_corners(
+            image, room, self.quality_level, self.min_distance_px, border_px=self.window // 2, exclude=occupied
+        )
+
+    def _start_filter(self, frame: PreparedFrame) -> _FrameRecord:
+        """Second frame of new tracks: SSD search around the first position, s0 and Σ0."""
+        n = len(self._pending_ids)
+        P0_pos = np.broadcast_to(self.model.P0[:2, :2], (n, 2, 2))
+        match = match_templates(
+            frame, self._pending_templates, self._pending_positions, P0_pos, self.gate_radius, "ssd", self.max_search_radius
+        )
+        found = match.searched & (match.dissimilarity <= DEFAULT_MAX_DISSIMILARITY["ssd"])
+        second = np.where(found[:, None], match.positions, self._pending_positions)
+        # s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀]
+        states = np.concatenate([second, second - self._pending_positions], axis=1)
+        templates = np.where(found[:, None, None], sample_patches(frame.image, second, self.window), self._pending_templates)
+        status = np.where(found, MEASURED, PREDICTED).astype(np.int8)
+        covariances = np.broadcast_to(self.model.P0, (n, 4, 4)).copy()
+        self._add_to_filter(self._pending_ids, states, covariances, templates, self._pending_templates, (~found).astype(np.int64))
+        record = _FrameRecord(self._pending_ids.copy(), states, covariances, status, match.dissimilarity)
+        self._pending_ids = np.zeros(0, np.int64)
+        self._pending_positions = np.zeros((0, 2))
+        self._pending_templates = np.zeros((0, self.window, self.window))
+        return record
+
+    def _add_to_filter(
+        self, ids: np.ndarray, states: np.ndarray, covariances: np.ndarray, templates: np.ndarray, anchors: np.ndarray, misses: np.ndarray
+    ) -> None:
+        if self._kf is not None and len(self._ids):
+            states = np.concatenate([self._kf.x, states])
+            covariances = np.concatenate([np.broadcast_to(self._kf.P, (len(self._ids), 4, 4)), covariances])
+            ids = np.concatenate([self._ids, ids])
+            templates = np.concatenate([self._templates, templates])
+            anchors = np.concatenate([self._anchors, anchors])
+            misses = np.concatenate([self._misses, misses])
+            strikes = np.concatenate([self._anchor_strikes, np.zeros(len(states) - len(self._ids), np.int64)])
+        else:
+            strikes = np.zeros(len(states), np.int64)
+        self._set_filter(ids, states, covariances, templates, anchors, misses, strikes)
+
+    def _set_filter(self, ids, states, covariances, templates, anchors, misses, strikes) -> None:  # type: ignore[no-untyped-def]
+        m = self.model
+        if len(ids):
+            shared = bool(np.all(covariances == covariances[:1]))
+            P = covariances[0] if shared else covariances
+            self._kf = KalmanFilter(states, P, m.F, m.H, m.Q, m.R)
+        else:
+            self._kf = None
+        self._ids, self._templates, self._anchors = ids, templates, anchors
+        self._misses, self._anchor_strikes = misses, strikes
+
+    def _step_filter(self, frame: PreparedFrame) -> _FrameRecord:
+        kf = self._kf
+        assert kf is not None  # internal invariant, not user input
+        kf.predict()
+        predicted = kf.x_prior[:, :2].copy()
+        prior_P = np.array(kf.P_prior)
+        match = match_templates(
+            frame, self._templates, predicted, prior_P[:, :2, :2], self.gate_radius, self.score, self.max_search_radius
+        )
+        z = match.positions.copy()
+        good = match.searched & (match.dissimilarity <= self.max_dissimilarity)
+        dissimilarity = match.dissimilarity
+        if self.template_policy == "anchored" and good.any():
+            z, dissimilarity = self._anchor_correction(frame, z, good, dissimilarity)
+        z[~good] = np.nan
+        kf.update(z)
+
+        misses = np.where(good, 0, self._misses + 1)
+        lost = misses > self.max_misses
+        status = np.where(good, MEASURED, PREDICTED).astype(np.int8)
+        status[lost] = LOST
+        states = np.array(kf.x)
+        covariances = np.array(kf.P)
+        states[lost] = np.nan
+        covariances[lost] = np.nan
+        record = _FrameRecord(self._ids.copy(), states, covariances, status, dissimilarity)
+
+        if self.template_policy != "first" and good.any():
+            fresh = sample_patches(frame.image, z[good], self.window)
+            self._templates = self._templates.copy()
+            self._templates[good] = fresh
+        self._misses = misses
+        if lost.any():
+            keep = ~lost
+            P_keep = np.broadcast_to(kf.P, (len(self._ids), 4, 4))[keep]
+            self._set_filter(
+                self._ids[keep], kf.x[keep], P_keep, self._templates[keep], self._anchors[keep],
+                self._misses[keep], self._anchor_strikes[keep],
+            )
+        return record
+
+    def _anchor_correction(
+        self, frame: PreparedFrame, z: np.ndarray, good: np.ndarray, dissimilarity: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Re-locate the anchor template near the current template's match; see the module docs."""
+        rows = np.flatnonzero(good)
+        # A tiny isotropic gate of about 2 px around the current match.
+        tight = np.broadcast_to(np.eye(2) * (2.0 / self.gate_radius) ** 2, (len(rows), 2, 2))
+        anchor = match_templates(frame, self._anchors[rows], z[rows], tight, self.gate_radius, self.score, 4)
+        agrees = anchor.searched & (anchor.dissimilarity <= self.anchor_dissimilarity)
+        z = z.copy()
+        dissimilarity = dissimilarity.copy()
+        z[rows[agrees]] = anchor.positions[agrees]
+        dissimilarity[rows[agrees]] = anchor.dissimilarity[agrees]
+        # The anchor no longer matches: after two such frames in a row the view has
+        # changed for good and the current template becomes the new anchor.
+        strikes = self._anchor_strikes.copy()
+        strikes[rows[agrees]] = 0
+        strikes[rows[~agrees]] += 1
+        renew = rows[~agrees][strikes[rows[~agrees]] >= self.anchor_patience]
+        if len(renew):
+            self._anchors = self._anchors.copy()
+            self._anchors[renew] = sample_patches(frame.image, z[renew], self.window)
+            strikes[renew] = 0
+        self._anchor_strikes = strikes
+        return z, dissimilarity
+
+    def _estimate(self) -> FrameEstimate:
+        r = self._records[-1]
+        return FrameEstimate(self._frame_index, r.ids, r.states[:, :2].copy(), r.status)
+
+    # -- result -----------------------------------------------------------------
+    def result(self) -> Tracks:
+        """All frames fed so far as :class:`~kalmansfm.tracking.tracks.Tracks`."""
+        if not self._records:
+            raise NotEnoughDataError("no frame was fed to the tracker")
+        all_ids = np.unique(np.concatenate([r.ids for r in self._records]))
+        # Keep the order in which tracks were created (ids may be user-given in any order).
+        first_seen: dict[int, int] = {}
+        for r in self._records:
+            for i in r.ids.tolist():
+                first_seen.setdefault(i, len(first_seen))
+        order = np.array(sorted(all_ids.tolist(), key=first_seen.__getitem__), dtype=np.int64)
+        column = {int(i): c for c, i in enumerate(order)}
+        F, P = len(self._records), len(order)
+        tracks = Tracks.empty(F, P)
+        scores = np.full((F, P), np.nan)
+        for f, r in enumerate(self._records):
+            cols = np.array([column[int(i)] for i in r.ids], dtype=np.intp)
+            if not len(cols):
+                continue
+            tracks.states[f, cols] = r.states
+            tracks.covariances[f, cols] = r.covariances
+            tracks.status[f, cols] = r.status
+            scores[f, cols] = r.scores
+        positions = tracks.states[..., :2].copy()
+        height, width = self._shape  # type: ignore[misc]
+        return Tracks(
+            positions=positions,
+            states=tracks.states,
+            covariances=tracks.covariances,
+            status=tracks.status,
+            track_ids=order,
+            scores=scores,
+            image_size=(int(width), int(height)),
+            parameters=dict(self.parameters),
+        )
+
+
+def _concatenate_records(records: list[_FrameRecord]) -> _FrameRecord:
+    if not records:
+        return _FrameRecord(np.zeros(0, np.int64), np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros(0, np.int8), np.zeros(0))
+    if len(records) == 1:
+        return records[0]
+    return _FrameRecord(*(np.concatenate([getattr(r, f) for r in records]) for f in ("ids", "states", "covariances", "status", "scores")))
+
+
+def track(
+    frames: object,
+    points: object | None = None,
+    *,
+    progress: bool = False,
+    **options: Any,
+) -> Tracks:
+    """Track points through a sequence of frames.
+
+    Parameters
+    ----------
+    frames : a sequence or iterator of 2D grey arrays (uint8 or float), or a path
+        (folder of images, glob or video; see :func:`kalmansfm.io.frames.read_frames`).
+    points : (P, 2) positions (x, y) in frame 0, or None to detect corners.
+    progress : show a tqdm progress bar on stderr.
+    **options : passed to :class:`Tracker` (``window``, ``score``, ``gate_probability``,
+        ``gate_radius``, ``max_misses``, ``template_policy``, ``redetect``, …).
+
+    Returns
+    -------
+    Tracks
+
+    Raises
+    ------
+    NotEnoughDataError
+        Fewer than 3 frames.
+
+    Examples
+    --------
+    >>> import cv2
+    >>> rng = np.random.default_rng(2)
+    >>> world = cv2.GaussianBlur(rng.uniform(0, 255, (100, 160)), (0, 0), 1.5)
+    >>> frames = [world[20:80, 20 + k: 100 + k] for k in range(5)]   # the scene moves 1 px left per frame
+    >>> tracks = track(frames, np.array([[40.0, 30.0], [50.0, 20.0]]))
+    >>> tracks.positions.shape, tracks.status[-1].tolist()
+    ((5, 2, 2), [1, 1])
+    >>> np.round(tracks.positions[-1], 1).tolist()
+    [[36.0, 30.0], [46.0, 20.0]]
+    """
+    if isinstance(frames, (str, bytes)) or hasattr(frames, "__fspath__"):
+        from ..io.frames import read_frames
+
+        frames = read_frames(frames)  # type: ignore[arg-type]
+    total = getattr(frames, "count", None)
+    if total is None and hasattr(frames, "__len__"):
+        total = len(frames)  # type: ignore[arg-type]
+    tracker = Tracker(points, **options)
+    try:
+        iterator: Iterable[Any] = iter(frames)  # type: ignore[call-overload]
+    except TypeError:
+        raise InvalidInputError(f"frames must be an iterable of 2D arrays or a path; got {type(frames).__name__}") from None
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, total=total, unit="frame", desc="tracking", leave=False)
+    for frame in iterator:
+        tracker.feed(frame)
+    if tracker.n_frames < 3:
+        raise NotEnoughDataError(f"tracking needs at least 3 frames; got {tracker.n_frames}")
+    return tracker.result()
+
