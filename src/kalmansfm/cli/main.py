@@ -21,7 +21,7 @@ from .. import __version__
 from ..errors import KalmanSfmError
 
 # Order shown in --help.
-SUBCOMMANDS = ["tables", "scene", "track"]
+SUBCOMMANDS = ["tables", "scene", "track", "reconstruct"]
 
 log = logging.getLogger("kalmansfm")
 

@@ -1,0 +1,571 @@
+"""Shape and motion from image tracks: Tomasi–Kanade factorization with a metric upgrade.
+
+Model (orthographic camera, report section 3): the image position of point p
+in frame f is x_fp = M_f S_p + t_f with M_f = [i_f; j_f] the first two rows of
+the camera rotation, S_p the 3D point and t_f the image of the centroid.
+Stacking the centred coordinates of all frames gives W (2F × P) = R S, of
+rank 3.
+
+Complete data, no weights (the report's algorithm):
+
+1. centre each frame: W = x − t with t_f the mean of frame f's points;
+2. rank-3 truncation W ≈ U′ D′ V′ᵀ (LAPACK, or the randomized solver of
+   :mod:`~kalmansfm.structure.lowrank` with a certified exact subspace for large W);
+3. affine factors R* = U′ D′^½ and S* = D′^½ V′ᵀ;
+4. metric upgrade: the symmetric A = Q Qᵀ (6 unknowns) from the linear
+   least-squares system i*ᵀ A i* = 1, j*ᵀ A j* = 1, i*ᵀ A j* = 0 over all frames;
+   Q by Cholesky; R = R* Q, S = Q⁻¹ S*;
+5. gauge: rotate so that frame 0's rows are the camera x and y axes.
+
+Missing data (NaN) or weights: the same model is fitted by weighted alternating
+least squares (ALS) over the observed entries only, with the translation t_f as
+unknowns (a frame centroid is meaningless when points are missing):
+
+1. initialise from the largest complete block of frames × points (found
+   greedily by dropping the frame or the points with the most holes), factored as
+   above without the metric step;
+2. extend: solve every point seen in ≥ 2 known frames (3 unknowns), every frame
+   seeing ≥ 4 known points (8 unknowns), and repeat until nothing new is reached;
+3. refine: alternate the two batched linear least-squares steps (points given
+   frames: a 3 × 3 system per point; frames given points: a 4 × 4 system per
+   image row) until the weighted cost stops decreasing;
+4. metric upgrade and gauge as above; the shape is finally re-centred.
+
+Points or frames that are never reached (too few observations, or not linked to
+the rest) come out as NaN and are named in ``warnings``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import InvalidInputError, NotEnoughDataError
+from .lowrank import truncated_svd
+
+__all__ = ["Reconstruction", "factorize", "metric_upgrade"]
+
+# Frames × points up to which the complete-data path uses a full LAPACK SVD.
+_LAPACK_LIMIT = 2_000_000
+# σ₃ / σ₄ below this: W is not convincingly rank 3.
+_RANK_GAP = 2.0
+# Shape thinner than this (smallest / largest spread) is called coplanar.
+_FLAT_RATIO = 1e-3
+# Condition number of the metric system above this: too little rotation to fix depth.
+_METRIC_CONDITION = 1e7
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """Shape and camera motion recovered from image tracks.
+
+    Attributes
+    ----------
+    points : (P, 3) float — the shape S, centred on its centroid, in the gauge where
+        frame 0's camera rows are the x and y axes. NaN for a point that could not be
+        reconstructed.
+    motion : (F, 2, 3) float — rows i_f and j_f of each frame's camera (unit length and
+        orthogonal up to noise). NaN for a frame that could not be reconstructed.
+    translation : (F, 2) float — image position of the shape's centroid in each frame.
+    singular_values : (k,) float — leading singular values of the centred 2F × P
+        measurement matrix (with missing data: of the matrix completed by the model).
+    residual_rms : float — RMS over observed (frame, point) pairs of the 2D distance
+        between observed and reprojected positions, in pixels.
+    residuals : (F, P) float — those distances; NaN where not observed.
+    observed : (F, P) bool — which entries were used.
+    warnings : tuple of str — degeneracies, fallbacks and dropped frames/points.
+    method : ``"svd"`` (closed form, complete unweighted data) or ``"als"``.
+    iterations : ALS iterations run (0 for ``"svd"``).
+    metric_matrix : (3, 3) — A = Q Qᵀ actually used (after any positive-definite repair),
+        in the affine gauge of R*.
+    """
+
+    points: np.ndarray
+    motion: np.ndarray
+    translation: np.ndarray
+    singular_values: np.ndarray
+    residual_rms: float
+    residuals: np.ndarray
+    observed: np.ndarray
+    warnings: tuple[str, ...]
+    method: str
+    iterations: int
+    metric_matrix: np.ndarray
+
+    def reprojected(self) -> np.ndarray:
+        """(F, P, 2) image positions predicted by the model, M_f S_p + t_f."""
+        return np.einsum("fij,pj->fpi", self.motion, self.points) + self.translation[:, None, :]
+
+    def mirrored(self) -> Reconstruction:
+        """The depth-reversed solution, which explains the tracks exactly as well.
+
+        Under orthography, (S, R) and (D S, R D) with D = diag(1, 1, −1) give the same
+        images; this returns the other member of the pair.
+        """
+        flip = np.array([1.0, 1.0, -1.0])
+        return replace(self, points=self.points * flip, motion=self.motion * flip)
+
+
+def factorize(
+    positions: np.ndarray,
+    *,
+    weights: np.ndarray | None = None,
+    max_iterations: int = 500,
+    tol: float = 1e-10,
+    rng: np.random.Generator | int | None = 0,
+) -> Reconstruction:
+    """Recover 3D shape and camera motion from point tracks (Tomasi–Kanade).
+
+    Parameters
+    ----------
+    positions : (F, P, 2) float — x = column, y = row of point p in frame f; NaN where the
+        point is not observed. Needs F ≥ 3 frames and P ≥ 4 points.
+    weights : (F, P) or (F, P, 2) float ≥ 0, optional — per-entry least-squares weights,
+        typically 1 / σ² from the tracker's posterior standard deviations. A zero weight
+        ignores the entry. Without weights every observation counts equally.
+    max_iterations : ALS iteration cap (missing data or weights).
+    tol : ALS stops when the weighted cost decreases by less than this fraction.
+    rng : seed or generator for the randomized SVD of large complete inputs.
+
+    Returns
+    -------
+    Reconstruction
+
+    Notes
+    -----
+    The result is defined up to the ambiguities of orthographic projection: a rotation
+    (fixed here by making frame 0's camera rows the x and y axes), and the *mirror*
+    (Necker) ambiguity — the depth-reversed shape ``points * (1, 1, -1)`` with motion
+    ``motion * (1, 1, -1)`` reproduces every image identically, so no data can decide
+    between them. One of the two is returned; :meth:`Reconstruction.mirrored` gives the
+    other. The scale is fixed by unit-length camera rows (pixels).
+
+    The closed form (no NaN, no weights) is the report's algorithm; otherwise the fit is
+    weighted alternating least squares over the observed entries (see the module notes).
+    Degenerate input is flagged in ``warnings`` rather than raised: a rank-2 W (coplanar
+    points, or no rotation out of the image plane), a flat shape, a metric system too
+    ill-conditioned to fix depth, and a non-positive-definite A (replaced by the nearest
+    positive-definite matrix).
+
+    Raises
+    ------
+    InvalidInputError
+        Wrong shape, infinite values, negative or non-finite weights.
+    NotEnoughDataError
+        Fewer than 3 usable frames or 4 usable points.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> shape = rng.normal(size=(8, 3)) * 10
+    >>> frames = [np.linalg.qr(rng.normal(size=(3, 3)))[0][:2] for _ in range(5)]
+    >>> tracks = np.stack([shape @ m.T + [100, 50] for m in frames])
+    >>> rec = factorize(tracks)
+    >>> rec.points.shape, rec.motion.shape, rec.residual_rms < 1e-9
+    ((8, 3), (5, 2, 3), True)
+    >>> rows = rec.motion @ rec.motion.transpose(0, 2, 1)
+    >>> bool(np.allclose(rows, np.eye(2)))
+    True
+    """
+    x, w = _validate(positions, weights)
+    frames, points = x.shape[:2]
+    observed = np.all(np.isfinite(x), axis=2) & np.any(w > 0, axis=2)
+    notes: list[str] = []
+    use_f, use_p = _usable(observed, notes)
+
+    complete = bool(observed[np.ix_(use_f, use_p)].all())
+    uniform = bool(np.ptp(w[np.ix_(use_f, use_p)][observed[np.ix_(use_f, use_p)]]) == 0.0)
+    if complete and uniform:
+        motion_aff, shape_aff, translation, sv = _closed_form(x[np.ix_(use_f, use_p)], rng)
+        method, iterations = "svd", 0
+        f_ok, p_ok = np.ones(int(use_f.sum()), bool), np.ones(int(use_p.sum()), bool)
+    else:
+        motion_aff, shape_aff, translation, iterations, f_ok, p_ok = _weighted_als(
+            x[np.ix_(use_f, use_p)], w[np.ix_(use_f, use_p)], observed[np.ix_(use_f, use_p)], max_iterations, tol, notes
+        )
+        method = "als"
+        sv = _completed_singular_values(x[np.ix_(use_f, use_p)], observed[np.ix_(use_f, use_p)],
+                                        motion_aff, shape_aff, translation, f_ok, p_ok, rng)
+        if not f_ok.all():
+            notes.append(f"{int((~f_ok).sum())} frame(s) not linked to the reconstructed points: left NaN")
+        if not p_ok.all():
+            notes.append(f"{int((~p_ok).sum())} point(s) not linked to the reconstructed frames: left NaN")
+        if f_ok.sum() < 3 or p_ok.sum() < 4:
+            raise NotEnoughDataError(
+                f"factorize needs >= 3 frames and >= 4 points linked by observations; "
+                f"reached {int(f_ok.sum())} frames and {int(p_ok.sum())} points"
+            )
+    _check_rank(sv, motion_aff[f_ok], shape_aff[p_ok], notes)
+
+    rows = motion_aff[f_ok].reshape(-1, 3)
+    a_matrix, q = metric_upgrade(rows, notes)
+    motion = motion_aff @ q  # R = R* Q
+    shape = np.linalg.solve(q, shape_aff.T).T  # S = Q⁻¹ S*
+
+    # Gauge: the orthonormal 2 × 3 nearest to frame 0's rows becomes [I 0].
+    first = int(np.flatnonzero(f_ok)[0])
+    u, _, vt = np.linalg.svd(motion[first], full_matrices=False)
+    axes = u @ vt
+    basis = np.vstack([axes, np.cross(axes[0], axes[1])])  # rows: camera x, y, z of frame 0
+    motion = motion @ basis.T
+    shape = shape @ basis.T
+    # Centre the shape; the shift goes into the translation: x = M (S − c) + (t + M c).
+    centroid = shape[p_ok].mean(axis=0)
+    shape = shape - centroid
+    translation = translation + motion @ centroid
+    _check_shape(shape[p_ok], notes)
+
+    full_motion = np.full((frames, 2, 3), np.nan)
+    full_translation = np.full((frames, 2), np.nan)
+    full_points = np.full((points, 3), np.nan)
+    f_index, p_index = np.flatnonzero(use_f)[f_ok], np.flatnonzero(use_p)[p_ok]
+    full_motion[f_index] = motion[f_ok]
+    full_translation[f_index] = translation[f_ok]
+    full_points[p_index] = shape[p_ok]
+
+    predicted = np.einsum("fij,pj->fpi", full_motion, full_points) + full_translation[:, None, :]
+    distance = np.sqrt(np.sum((predicted - x) ** 2, axis=2))
+    residuals = np.where(observed, distance, np.nan)
+    used = observed & np.isfinite(residuals)
+    residual_rms = float(np.sqrt(np.mean(residuals[used] ** 2)))
+    return Reconstruction(
+        points=full_points,
+        motion=full_motion,
+        translation=full_translation,
+        singular_values=sv,
+        residual_rms=residual_rms,
+        residuals=residuals,
+        observed=used,
+        warnings=tuple(notes),
+        method=method,
+        iterations=iterations,
+        metric_matrix=a_matrix,
+    )
+
+
+def metric_upgrade(affine_rows: np.ndarray, notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Solve the metric constraints for A = Q Qᵀ and return ``(A, Q)``.
+
+    Parameters
+    ----------
+    affine_rows : (2F, 3) — rows i*_f, j*_f of the affine motion R*, frame by frame.
+    notes : list to which a message is appended when A had to be repaired or is
+        ill-determined.
+
+    Returns
+    -------
+    (A, Q) : the (repaired) symmetric positive-definite A and its Cholesky factor Q.
+
+    Examples
+    --------
+    >>> rot = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+    >>> frames = np.vstack([np.eye(3)[:2], rot[:2], rot.T[:2]])
+    >>> a, q = metric_upgrade(frames @ np.diag([2.0, 1.0, 0.5]))
+    >>> np.round(np.diag(a), 6)
+    array([0.25, 1.  , 4.  ])
+    """
+    notes = [] if notes is None else notes
+    i_rows, j_rows = affine_rows[0::2], affine_rows[1::2]
+    # |i|² = 1, |j|² = 1, i·j = 0, each linear in the 6 entries of the symmetric A
+    system = np.vstack([_quadratic_terms(i_rows, i_rows), _quadratic_terms(j_rows, j_rows), _quadratic_terms(i_rows, j_rows)])
+    target = np.concatenate([np.ones(2 * len(i_rows)), np.zeros(len(i_rows))])
+    scale = np.abs(system).max(axis=0)
+    scale[scale == 0] = 1.0
+    solution, _, rank, sv = np.linalg.lstsq(system / scale, target, rcond=None)
+    solution /= scale
+    if rank < 6 or sv[-1] < sv[0] / _METRIC_CONDITION:
+        notes.append(
+            "the metric constraints barely determine A (condition "
+            f"{sv[0] / max(sv[-1], np.finfo(float).tiny):.3g}): too little rotation; depth scale unreliable"
+        )
+    a11, a12, a13, a22, a23, a33 = solution
+    a_matrix = np.array([[a11, a12, a13], [a12, a22, a23], [a13, a23, a33]])
+    eigenvalues, eigenvectors = np.linalg.eigh(a_matrix)
+    if eigenvalues[0] <= 1e-12 * abs(eigenvalues[-1]):
+        # Nearest positive-definite matrix (Frobenius norm): clip the eigenvalues.
+        floor = 1e-6 * max(abs(eigenvalues).max(), np.finfo(float).tiny)
+        repaired = np.maximum(np.abs(eigenvalues) if eigenvalues[-1] <= 0 else eigenvalues, floor)
+        notes.append(
+            f"metric matrix A not positive definite (eigenvalues {np.array2string(eigenvalues, precision=3)}); "
+            "used the nearest positive-definite matrix"
+        )
+        a_matrix = (eigenvectors * repaired) @ eigenvectors.T
+    q = np.linalg.cholesky(a_matrix)
+    return a_matrix, q
+
+
+def _quadratic_terms(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rows c with c · (a11, a12, a13, a22, a23, a33) = aᵀ A b for symmetric A."""
+    return np.stack(
+        [
+            a[:, 0] * b[:, 0],
+            a[:, 0] * b[:, 1] + a[:, 1] * b[:, 0],
+            a[:, 0] * b[:, 2] + a[:, 2] * b[:, 0],
+            a[:, 1] * b[:, 1],
+            a[:, 1] * b[:, 2] + a[:, 2] * b[:, 1],
+            a[:, 2] * b[:, 2],
+        ],
+        axis=1,
+    )
+
+
+def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        x = np.asarray(positions, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"positions must be numeric; could not convert them ({exc})") from None
+    if x.ndim != 3 or x.shape[2] != 2:
+        raise InvalidInputError(f"positions must have shape (frames, points, 2); got {x.shape}")
+    if np.isinf(x).any():
+        bad = tuple(int(i) for i in np.argwhere(np.isinf(x))[0])
+        raise InvalidInputError(f"positions must be finite or NaN (missing); entry {bad} is {x[bad]}")
+    frames, points = x.shape[:2]
+    if frames < 3 or points < 4:
+        raise NotEnoughDataError(f"factorize needs >= 3 frames and >= 4 points; got {frames} frames, {points} points")
+    if weights is None:
+        return x, np.ones_like(x)
+    try:
+        w = np.asarray(weights, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"weights must be numeric; could not convert them ({exc})") from None
+    if w.shape == (frames, points):
+        w = np.repeat(w[:, :, None], 2, axis=2)
+    if w.shape != (frames, points, 2):
+        raise InvalidInputError(f"weights must have shape ({frames}, {points}) or ({frames}, {points}, 2); got {w.shape}")
+    finite_obs = np.isfinite(x)
+    bad = finite_obs & ~(np.isfinite(w) & (w >= 0))
+    if bad.any():
+        where = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise InvalidInputError(f"weights must be finite and >= 0 where positions are observed; entry {where} is {w[where]}")
+    return x, np.where(finite_obs, w, 0.0)
+
+
+def _usable(observed: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Drop points seen in < 2 frames and frames seeing < 4 points, until stable."""
+    use_f = np.ones(observed.shape[0], bool)
+    use_p = np.ones(observed.shape[1], bool)
+    while True:
+        sub = observed & use_f[:, None] & use_p[None, :]
+        new_p = use_p & (sub.sum(axis=0) >= 2)
+        new_f = use_f & ((sub & new_p[None, :]).sum(axis=1) >= 4)
+        if (new_p == use_p).all() and (new_f == use_f).all():
+            break
+        use_f, use_p = new_f, new_p
+    if not observed.any():
+        raise NotEnoughDataError("factorize got no observed positions (all NaN)")
+    if use_f.sum() < 3 or use_p.sum() < 4:
+        raise NotEnoughDataError(
+            "factorize needs >= 3 frames that each see >= 4 points seen in >= 2 frames; "
+            f"got {int(use_f.sum())} such frames and {int(use_p.sum())} such points"
+        )
+    if not use_p.all():
+        notes.append(f"{int((~use_p).sum())} point(s) observed in fewer than 2 usable frames: left NaN")
+    if not use_f.all():
+        notes.append(f"{int((~use_f).sum())} frame(s) observing fewer than 4 usable points: left NaN")
+    return use_f, use_p
+
+
+def _closed_form(x: np.ndarray, rng: object) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Report eqs. 14–24: centre, rank-3 SVD, R* = U′D′^½, S* = D′^½V′ᵀ."""
+    frames, points = x.shape[:2]
+    w = np.ascontiguousarray(x.transpose(0, 2, 1)).reshape(2 * frames, points)  # rows x_f, y_f
+    centroids = w.mean(axis=1)
+    method = "lapack" if w.size <= _LAPACK_LIMIT else "randomized"
+    svd = truncated_svd(w, 3, row_offsets=centroids, method=method, rng=rng)
+    root = np.sqrt(svd.s)
+    motion = (svd.u * root).reshape(frames, 2, 3)
+    shape = (svd.vt.T * root)
+    sv = np.concatenate([svd.s, svd.extra_singular_values])
+    return motion, shape, centroids.reshape(frames, 2), sv
+
+
+def _weighted_als(
+    x: np.ndarray, w: np.ndarray, observed: np.ndarray, max_iterations: int, tol: float, notes: list[str]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
+    frames, points = observed.shape
+    # Work in the (2F, P) layout of W: row 2f is x of frame f, row 2f+1 its y.
+    values = np.where(observed[:, :, None], x, 0.0).transpose(0, 2, 1).reshape(2 * frames, points)
+    weight = np.where(observed[:, :, None], w, 0.0).transpose(0, 2, 1).reshape(2 * frames, points)
+    weighted_values = weight * values
+
+    motion, shape, translation, f_ok, p_ok = _initialise(values, observed)
+    known_rows = np.repeat(f_ok, 2)
+    weight = weight * known_rows[:, None] * p_ok[None, :]
+    weighted_values = weighted_values * known_rows[:, None] * p_ok[None, :]
+    total = float(np.sum(weighted_values * values))
+
+    def cost(motion: np.ndarray, shape: np.ndarray, translation: np.ndarray) -> float:
+        prediction = motion @ shape.T + translation[:, None]
+        return float(np.sum(weight * (values - prediction) ** 2))
+
+    previous = cost(motion, shape, translation)
+    iterations = 0
+    converged = previous <= 1e-30 * max(total, 1.0)
+    while not converged and iterations < max_iterations:
+        shape = _solve_points(weight, weighted_values, motion, translation, shape)
+        motion, translation = _solve_frames(weight, weighted_values, shape, motion, translation)
+        iterations += 1
+        current = cost(motion, shape, translation)
+        converged = previous - current <= tol * previous or current <= 1e-30 * max(total, 1.0)
+        previous = current
+    if not converged:
+        notes.append(f"alternating least squares stopped after {iterations} iterations without converging")
+    return motion.reshape(frames, 2, 3), shape, translation.reshape(frames, 2), iterations, f_ok, p_ok
+
+
+def _solve_points(weight: np.ndarray, weighted_values: np.ndarray, motion: np.ndarray, translation: np.ndarray,
+                  fallback: np.ndarray) -> np.ndarray:
+    """Each S_p = argmin Σ_rows w (x − m·S_p − t)²: a batched 3 × 3 system per point."""
+    outer = (motion[:, :, None] * motion[:, None, :]).reshape(-1, 9)  # m mᵀ per image row
+    normal = (weight.T @ outer).reshape(-1, 3, 3)
+    rhs = weighted_values.T @ motion - weight.T @ (translation[:, None] * motion)
+    return _batched_solve(normal, rhs, fallback)
+
+
+def _solve_frames(weight: np.ndarray, weighted_values: np.ndarray, shape: np.ndarray, motion: np.ndarray,
+                  translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each image row [m | t] = argmin Σ_p w (x − m·S_p − t)²: a batched 4 × 4 system per row."""
+    homogeneous = np.hstack([shape, np.ones((shape.shape[0], 1))])
+    outer = (homogeneous[:, :, None] * homogeneous[:, None, :]).reshape(-1, 16)
+    normal = (weight @ outer).reshape(-1, 4, 4)
+    rhs = weighted_values @ homogeneous
+    solution = _batched_solve(normal, rhs, np.hstack([motion, translation[:, None]]))
+    return solution[:, :3], solution[:, 3]
+
+
+def _batched_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Solve normal @ s = rhs per batch entry; singular systems keep ``fallback``."""
+    n = normal.shape[-1]
+    trace = np.trace(normal, axis1=1, axis2=2)
+    ok = trace > 0
+    # A relative ridge of 1e-13 keeps exactly singular systems solvable without biasing others.
+    regularised = normal + (1e-13 * trace)[:, None, None] * np.eye(n)
+    out = fallback.copy()
+    if ok.any():
+        out[ok] = np.linalg.solve(regularised[ok], rhs[ok][:, :, None])[:, :, 0]
+    return out
+
+
+def _initialise(values: np.ndarray, observed: np.ndarray):
+    """Affine factors from the largest complete block, extended to all reachable frames and points."""
+    frames, points = observed.shape
+    rows, cols = _complete_block(observed)
+    motion = np.zeros((2 * frames, 3))
+    translation = np.zeros(2 * frames)
+    shape = np.zeros((points, 3))
+    f_ok = np.zeros(frames, bool)
+    p_ok = np.zeros(points, bool)
+    if rows.sum() >= 3 and cols.sum() >= 4:
+        block_rows = np.repeat(rows, 2)
+        block = values[np.ix_(block_rows, cols)]
+        centroid = block.mean(axis=1)
+        u, s, vt = np.linalg.svd(block - centroid[:, None], full_matrices=False)
+        root = np.sqrt(s[:3])
+        motion[block_rows] = u[:, :3] * root
+        translation[block_rows] = centroid
+        shape[cols] = vt[:3].T * root
+        f_ok[rows], p_ok[cols] = True, True
+    else:
+        # No usable complete block: impute frame means and take the rank-3 part.
+        rows_of_obs = np.repeat(observed, 2, axis=0)
+        counts = rows_of_obs.sum(axis=1)
+        centroid = values.sum(axis=1) / np.maximum(counts, 1)
+        filled = np.where(rows_of_obs, values, centroid[:, None]) - centroid[:, None]
+        u, s, vt = np.linalg.svd(filled, full_matrices=False)
+        root = np.sqrt(s[:3])
+        return u[:, :3] * root, vt[:3].T * root, centroid, observed.sum(axis=1) >= 4, observed.sum(axis=0) >= 2
+    weight = np.repeat(observed, 2, axis=0).astype(np.float64)
+    weighted_values = weight * values
+    while True:
+        seen_by_known = (observed & f_ok[:, None]).sum(axis=0)
+        new_p = ~p_ok & (seen_by_known >= 2)
+        if new_p.any():
+            w_known = weight * np.repeat(f_ok, 2)[:, None]
+            solved = _solve_points(w_known[:, new_p], weighted_values[:, new_p] * np.repeat(f_ok, 2)[:, None],
+                                   motion, translation, shape[new_p])
+            shape[new_p] = solved
+            p_ok |= new_p
+        seen_known = (observed & p_ok[None, :]).sum(axis=1)
+        new_f = ~f_ok & (seen_known >= 4)
+        if new_f.any():
+            rows_new = np.repeat(new_f, 2)
+            m, t = _solve_frames(weight[rows_new] * p_ok, weighted_values[rows_new] * p_ok, shape,
+                                 motion[rows_new], translation[rows_new])
+            motion[rows_new], translation[rows_new] = m, t
+            f_ok |= new_f
+        if not new_p.any() and not new_f.any():
+            break
+    return motion, shape, translation, f_ok, p_ok
+
+
+def _complete_block(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy search for a large all-observed block of frames × points.
+
+    Repeatedly drop every point whose missing fraction is larger than that of the worst
+    frame, else the worst frame; the counts are updated incrementally.
+    """
+    rows = np.ones(observed.shape[0], bool)
+    cols = np.ones(observed.shape[1], bool)
+    missing = ~observed
+    row_missing = missing.sum(axis=1).astype(np.int64)
+    col_missing = missing.sum(axis=0).astype(np.int64)
+    while rows.sum() >= 3 and cols.sum() >= 4:
+        n_rows, n_cols = int(rows.sum()), int(cols.sum())
+        row_frac = np.where(rows, row_missing / n_cols, -1.0)
+        col_frac = np.where(cols, col_missing / n_rows, -1.0)
+        worst_row = float(row_frac.max())
+        if worst_row <= 0 and col_frac.max() <= 0:
+            break
+        drop_cols = col_frac > worst_row
+        if drop_cols.any():
+            cols &= ~drop_cols
+            row_missing -= missing[:, drop_cols].sum(axis=1)
+        else:
+            r = int(np.argmax(row_frac))
+            rows[r] = False
+            col_missing -= missing[r]
+    return rows, cols
+
+
+def _completed_singular_values(x, observed, motion, shape, translation, f_ok, p_ok, rng) -> np.ndarray:
+    """Singular values of the centred W with holes filled by the model (known frames and points)."""
+    xs = x[np.ix_(f_ok, p_ok)]
+    model = np.einsum("fij,pj->fpi", motion[f_ok], shape[p_ok]) + translation[f_ok][:, None, :]
+    filled = np.where(observed[np.ix_(f_ok, p_ok)][:, :, None], xs, model)
+    w = np.ascontiguousarray(filled.transpose(0, 2, 1)).reshape(-1, filled.shape[1])
+    k = min(3, *w.shape)
+    method = "lapack" if w.size <= _LAPACK_LIMIT else "randomized"
+    svd = truncated_svd(w, k, row_offsets=w.mean(axis=1), method=method, rng=rng)
+    return np.concatenate([svd.s, svd.extra_singular_values])
+
+
+def _check_rank(sv: np.ndarray, motion: np.ndarray, shape: np.ndarray, notes: list[str]) -> None:
+    """Flag a W that is not clearly rank 3 and say whether the shape or the motion is to blame."""
+    fourth = sv[3] if sv.size > 3 else 0.0
+    if not (sv[2] <= 1e-9 * sv[0] or sv[2] < _RANK_GAP * fourth):
+        return
+    # Rank-2 part of the fitted W = M Sᵀ: left singular vectors of M L with L Lᵀ = SᵀS.
+    gram = shape.T @ shape
+    lower = np.linalg.cholesky(gram + 1e-12 * np.trace(gram) * np.eye(3))
+    u, s, _ = np.linalg.svd(motion.reshape(-1, 3) @ lower, full_matrices=False)
+    blocks = (u[:, :2] * s[:2]).reshape(-1, 2, 2)
+    # Each frame relative to the first: T_f = B_f B_0⁻¹; a similarity has T = [[a, -b], [b, a]].
+    relative = blocks @ np.linalg.pinv(blocks[0])
+    deviation = np.abs(relative[:, 0, 0] - relative[:, 1, 1]) + np.abs(relative[:, 0, 1] + relative[:, 1, 0])
+    size = np.linalg.norm(relative, axis=(1, 2))
+    cause = (
+        "no rotation out of the image plane (every frame is a 2D similarity of the first)"
+        if np.all(deviation <= 0.02 * size)
+        else "the points are (nearly) coplanar"
+    )
+    notes.append(
+        f"W is not clearly rank 3 (singular values {np.array2string(sv[:4], precision=4)}): "
+        f"{cause}; depth is not determined"
+    )
+
+
+def _check_shape(shape: np.ndarray, notes: list[str]) -> None:
+    spread = np.linalg.svd(shape - shape.mean(axis=0), compute_uv=False)
+    if spread[0] > 0 and spread[-1] < _FLAT_RATIO * spread[0]:
+        notes.append(f"the recovered points are (nearly) coplanar (thickness/extent {spread[-1] / spread[0]:.2g})")

@@ -1,0 +1,150 @@
+import numpy as np
+import pytest
+
+from kalmansfm import InvalidInputError
+from kalmansfm.io.structure import motion_csv, structure_csv, structure_ply
+from kalmansfm.io.track_table import read_track_positions
+
+TRACKER_HEADER = "frame,track_id,x,y,vx,vy,std_x,std_y,status\n"
+
+
+def test_tracker_csv_uses_only_measured_rows(tmp_path):
+    f = tmp_path / "tracks.csv"
+    f.write_text(
+        TRACKER_HEADER
+        + "0,3,10.0,20.0,0,0,2.0,2.0,measured\n"
+        + "0,8,30.0,40.0,0,0,1.0,0.5,measured\n"
+        + "1,3,11.0,21.0,1,1,3.0,3.0,predicted\n"
+        + "1,8,nan,nan,0,0,nan,nan,lost\n"
+        + "2,3,12.0,22.0,1,1,2.5,2.5,measured\n"
+    )
+    t = read_track_positions(f)
+    assert t.track_ids.tolist() == [3, 8] and t.frames.tolist() == [0, 1, 2]
+    np.testing.assert_array_equal(t.positions[0], [[10, 20], [30, 40]])
+    assert np.isnan(t.positions[1]).all()
+    np.testing.assert_array_equal(t.positions[2, 0], [12, 22])
+    np.testing.assert_array_equal(t.std[0, 1], [1.0, 0.5])
+    np.testing.assert_array_equal(t.weights[0, 1], [1.0, 4.0])
+
+
+def test_plain_csv_with_comments(tmp_path):
+    f = tmp_path / "plain.csv"
+    f.write_text("# made by hand\nframe,track_id,x,y\n1,1,5,6\n2,1,7,8\n")
+    t = read_track_positions(f)
+    assert t.std is None and t.weights is None
+    np.testing.assert_array_equal(t.positions[:, 0], [[5, 6], [7, 8]])
+
+
+def make_npz(path, **overrides):
+    rng = np.random.default_rng(0)
+    arrays = {
+        "positions": rng.uniform(0, 100, size=(4, 3, 2)),
+        "covariances": np.broadcast_to(np.diag([4.0, 9.0, 1.0, 1.0]), (4, 3, 4, 4)).copy(),
+        "status": np.array([[1, 1, 0], [1, 2, 1], [1, 3, 1], [1, 1, 1]]),
+        "track_ids": np.array([5, 2, 9]),
+    }
+    arrays.update(overrides)
+    arrays = {k: v for k, v in arrays.items() if v is not None}
+    np.savez(path, **arrays)
+    return arrays
+
+
+def test_npz_uses_status_1_and_sorts_track_ids(tmp_path):
+    f = tmp_path / "tracks.npz"
+    arrays = make_npz(f)
+    t = read_track_positions(f)
+    assert t.track_ids.tolist() == [2, 5, 9]
+    np.testing.assert_array_equal(t.positions[:, 1], arrays["positions"][:, 0])  # track 5
+    assert np.isnan(t.positions[1, 0]).all() and np.isnan(t.positions[0, 2]).all()
+    np.testing.assert_allclose(t.std[0, 1], [2.0, 3.0])
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("frame,track_id,x\n0,1,2\n", "line 1: header lacks column\\(s\\) y"),
+        ("frame,track_id,x,y\n0,1,2,3\n0,2,abc,3\n", "line 3: x must be a number; got 'abc'"),
+        ("frame,track_id,x,y\n0,1,2,3\n0,2,nan,3\n", "line 3: x must be finite"),
+        ("frame,track_id,x,y\n0,1,2,3\n0,2,inf,3\n", "line 3: x must be finite"),
+        ("frame,track_id,x,y\n0,1,2,3\n0.5,2,1,3\n", "line 3: frame must be an integer"),
+        ("frame,track_id,x,y\n0,1,2,3\n0,1,2,3\n", "lines 2 and 3"),
+        ("frame,track_id,x,y\n0,1,2\n", "line 2: 3 fields"),
+        (TRACKER_HEADER + "0,1,2,3,0,0,1,1,flying\n", "line 2: status must be"),
+        (TRACKER_HEADER + "0,1,2,3,0,0,0,1,measured\n", "line 2: std_x and std_y must be > 0"),
+        ("", "empty file"),
+        ("frame,track_id,x,y\n", "no data rows"),
+    ],
+)
+def test_malformed_csv(tmp_path, text, message):
+    f = tmp_path / "bad.csv"
+    f.write_text(text)
+    with pytest.raises(InvalidInputError, match=message) as err:
+        read_track_positions(f)
+    assert str(f) in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"status": None}, "missing array\\(s\\) status"),
+        ({"positions": np.zeros((4, 3))}, "positions must be a numeric \\(frames, points, 2\\)"),
+        ({"status": np.ones((4, 2), int)}, "status must be an integer \\(4, 3\\)"),
+        ({"track_ids": np.array([1, 2])}, "track_ids must be an integer \\(3,\\)"),
+        ({"track_ids": np.array([1, 1, 2])}, "distinct"),
+        ({"status": np.full((4, 3), 7)}, "status\\[0, 0\\] = 7"),
+        ({"covariances": np.zeros((4, 3, 2, 2))}, "covariances must have shape"),
+        ({"positions": np.full((4, 3, 2), np.nan)}, "positions\\[0, 0\\].*not finite"),
+    ],
+)
+def test_malformed_npz(tmp_path, overrides, message):
+    f = tmp_path / "bad.npz"
+    make_npz(f, **overrides)
+    with pytest.raises(InvalidInputError, match=message) as err:
+        read_track_positions(f)
+    assert str(f) in str(err.value)
+
+
+def test_missing_and_garbage_files(tmp_path):
+    with pytest.raises(InvalidInputError, match="no such file"):
+        read_track_positions(tmp_path / "nope.csv")
+    garbage = tmp_path / "x.npz"
+    garbage.write_bytes(b"not a zip")
+    with pytest.raises(InvalidInputError, match="not a readable NPZ"):
+        read_track_positions(garbage)
+
+
+def parse_ascii_ply(text):
+    """A minimal ASCII PLY reader: header → vertex count and property names, then rows."""
+    lines = text.splitlines()
+    assert lines[0] == "ply" and lines[1] == "format ascii 1.0"
+    end = lines.index("end_header")
+    count, props = None, []
+    for line in lines[2:end]:
+        words = line.split()
+        if words[0] == "element":
+            assert words[1] == "vertex"
+            count = int(words[2])
+        elif words[0] == "property":
+            props.append((words[1], words[2]))
+        else:
+            assert words[0] == "comment"
+    rows = [line.split() for line in lines[end + 1 :]]
+    assert len(rows) == count and all(len(r) == len(props) for r in rows)
+    return {name: np.array([(int if kind == "int" else float)(r[i]) for r in rows]) for i, (kind, name) in enumerate(props)}
+
+
+def test_ply_parses_and_round_trips():
+    points = np.array([[1.5, -2.0, 3.25], [np.nan, 0, 0], [0.1, 0.2, 0.3]])
+    ply = parse_ascii_ply(structure_ply([10, 11, 12], points, comment="a\nb"))
+    assert ply["track_id"].tolist() == [10, 12]
+    np.testing.assert_allclose(np.stack([ply["x"], ply["y"], ply["z"]], axis=1), points[[0, 2]], rtol=1e-7)
+
+
+def test_csv_writers_round_trip():
+    points = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    rows = np.loadtxt(structure_csv([7, 9], points).splitlines()[1:], delimiter=",")
+    np.testing.assert_array_equal(rows, [[7, 1, 2, 3], [9, 4, 5, 6]])
+    motion = np.stack([np.eye(3)[:2], np.full((2, 3), np.nan)])
+    text = motion_csv([0, 1], motion, np.array([[1.0, 2.0], [3.0, 4.0]]))
+    assert text.splitlines()[0] == "frame,i_x,i_y,i_z,j_x,j_y,j_z,t_x,t_y"
+    assert text.splitlines()[1:] == ["0,1,0,0,0,1,0,1,2"]
