@@ -47,7 +47,24 @@ def test_unknown_task_exits_2_with_one_line(capsys, bad):
     assert main(["tables", "--task", bad]) == 2
     out, err = capsys.readouterr()
     assert out == ""
-    assert err == f"kalmansfm tables: error: unknown task {bad}; tasks 1–6 are available\n"
+    assert err == (
+        f"kalmansfm tables: error: unknown task {bad}; tasks 1-6 (published tables) "
+        "and 7 (simulated moving camera) are available\n"
+    )
+
+
+def test_task7_prints_the_simulated_table_in_the_3d_columns(capsys):
+    assert main(["tables", "--task", "7", "--format", "csv", "--seed", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == HEADER_3D and len(lines) == 25
+    last = [float(v) for v in lines[-1].split(",")]
+    truth, meas_std, kalman, kalman_std = last[1:4], last[7:10], last[10:13], last[13:16]
+    # pairs at the report's magnitudes: single-pair std of metres to tens of metres, fused std below that
+    assert all(k < m for k, m in zip(kalman_std, meas_std))
+    assert all(abs(k - t) < 20 for k, t in zip(kalman, truth))
+    assert main(["tables", "--task", "7", "--format", "csv", "--seed", "3", "--method", "batch"]) == 0
+    batch = capsys.readouterr().out.splitlines()
+    assert batch[0] == HEADER_3D and batch[1:] != lines[1:]
 
 
 @pytest.mark.parametrize("argv", [["tables", "--task", "x"], ["tables", "--task", "1", "--format", "xml"], ["tables"]])

@@ -21,7 +21,7 @@ from .. import __version__
 from ..errors import KalmanSfmError
 
 # Order shown in --help.
-SUBCOMMANDS = ["tables", "scene", "track", "reconstruct", "report"]
+SUBCOMMANDS = ["demo", "track", "reconstruct", "report", "tables", "consistency", "scene"]
 
 log = logging.getLogger("kalmansfm")
 
