@@ -562,6 +562,8 @@ def track(
 
         frames = read_frames(frames)  # type: ignore[arg-type]
     total = getattr(frames, "count", None)
+    if callable(total):  # list.count and tuple.count are methods, not a frame count
+        total = None
     if total is None and hasattr(frames, "__len__"):
         total = len(frames)  # type: ignore[arg-type]
     tracker = Tracker(points, **options)
