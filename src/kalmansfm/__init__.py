@@ -14,6 +14,7 @@ from .errors import (
     SingularCovarianceError,
 )
 from .estimation import FusionResult, KalmanFilter, fuse_closed_form, fuse_recursive
+from .tracking import Tracker, Tracks, track
 
 try:
     __version__ = version("kalmansfm")
@@ -28,8 +29,11 @@ __all__ = [
     "KalmanSfmWarning",
     "NotEnoughDataError",
     "SingularCovarianceError",
+    "Tracker",
+    "Tracks",
     "__version__",
     "fuse_closed_form",
     "fuse_recursive",
     "models",
+    "track",
 ]

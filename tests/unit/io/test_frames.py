@@ -1,0 +1,80 @@
+"""Frames reader: natural order, ignored files, grey conversion, and every kind of bad input."""
+
+import cv2
+import numpy as np
+import pytest
+
+from kalmansfm.errors import InvalidInputError, NotEnoughDataError
+from kalmansfm.io.frames import read_frames
+
+
+def write_frames(folder, names, size=(8, 6)):
+    folder.mkdir(parents=True, exist_ok=True)
+    for k, name in enumerate(names):
+        cv2.imwrite(str(folder / name), np.full((size[1], size[0], 3), k * 10, np.uint8))
+
+
+def test_natural_order_any_case_extensions_and_other_files_ignored(tmp_path):
+    write_frames(tmp_path, ["frame2.png", "frame10.PNG", "frame1.jpg", "frame3.TIF"])
+    (tmp_path / "notes.txt").write_text("not a frame")
+    (tmp_path / "sub.png").mkdir()
+    frames = read_frames(tmp_path)
+    assert [p.name for p in frames.files] == ["frame1.jpg", "frame2.png", "frame3.TIF", "frame10.PNG"]
+    images = list(frames)
+    assert frames.count == 4 and all(im.ndim == 2 and im.dtype == np.uint8 for im in images)
+    # written as 0, 10, 20, 30 in the order frame2, frame10, frame1, frame3 (jpg is lossy)
+    assert [int(round(im.mean())) for im in images] == pytest.approx([20, 0, 30, 10], abs=2)
+
+
+def test_glob(tmp_path):
+    write_frames(tmp_path, ["a_1.png", "a_2.png", "a_10.png", "b_1.png"])
+    frames = read_frames(str(tmp_path / "a_*.png"))
+    assert [p.name for p in frames.files] == ["a_1.png", "a_2.png", "a_10.png"]
+    with pytest.raises(InvalidInputError, match="matches no image"):
+        read_frames(str(tmp_path / "c_*.png"))
+
+
+def test_missing_empty_and_too_short(tmp_path):
+    with pytest.raises(InvalidInputError, match="does not exist"):
+        read_frames(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "readme.txt").write_text("x")
+    with pytest.raises(InvalidInputError, match="no image files"):
+        read_frames(tmp_path / "empty")
+    write_frames(tmp_path / "two", ["1.png", "2.png"])
+    with pytest.raises(NotEnoughDataError, match="at least 3"):
+        read_frames(tmp_path / "two")
+
+
+def test_bad_files_are_named(tmp_path):
+    write_frames(tmp_path / "fake", ["1.png", "2.png", "3.png"])
+    (tmp_path / "fake" / "2.png").write_text("this is text")
+    with pytest.raises(InvalidInputError, match=r"2\.png is not a readable image"):
+        list(read_frames(tmp_path / "fake"))
+
+    write_frames(tmp_path / "cut", ["1.png", "2.png", "3.png"], size=(64, 48))
+    data = (tmp_path / "cut" / "3.png").read_bytes()
+    (tmp_path / "cut" / "3.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(InvalidInputError, match=r"3\.png"):
+        list(read_frames(tmp_path / "cut"))
+
+    write_frames(tmp_path / "sizes", ["1.png", "2.png"])
+    write_frames(tmp_path / "other", ["3.png"], size=(9, 6))
+    (tmp_path / "other" / "3.png").rename(tmp_path / "sizes" / "3.png")
+    with pytest.raises(InvalidInputError, match=r"3\.png is 9×6 but 1\.png is 8×6"):
+        list(read_frames(tmp_path / "sizes"))
+
+
+def test_video_and_undecodable_video(tmp_path):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (32, 24))
+    for k in range(5):
+        writer.write(np.full((24, 32, 3), 40 * k, np.uint8))
+    writer.release()
+    frames = read_frames(path)
+    images = list(frames)
+    assert len(images) == 5 and images[0].shape == (24, 32)
+    bogus = tmp_path / "clip.mp4"
+    bogus.write_bytes(b"\x00garbage" * 100)
+    with pytest.raises(InvalidInputError, match="clip.mp4"):
+        read_frames(bogus)

@@ -1,0 +1,139 @@
+"""Tracker logic: coasting, loss, re-acquisition, identities, redetection; accuracy on the scene and cmu_house."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from kalmansfm.errors import InvalidInputError, NotEnoughDataError
+from kalmansfm.scenes import Occluder, render_scene
+from kalmansfm.tracking.tracker import Tracker, track
+from kalmansfm.tracking.tracks import LOST, MEASURED, NO_TRACK, PREDICTED
+
+HOUSE = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "cmu_house"
+
+
+def moving_texture(n_frames, step=(2.0, 1.0), size=(120, 90), seed=0):
+    """A blurred random texture translated by ``step`` px per frame, and a function giving true positions."""
+    rng = np.random.default_rng(seed)
+    w, h = size
+    world = cv2.GaussianBlur(rng.uniform(0, 255, (h + 100, w + 100)), (0, 0), 1.5)
+    frames = []
+    for k in range(n_frames):
+        M = np.float64([[1, 0, -50 + step[0] * k], [0, 1, -50 + step[1] * k]])
+        frames.append(cv2.warpAffine(world, M, (w, h), flags=cv2.INTER_CUBIC))
+    return frames, lambda p0, k: p0 + np.array(step) * k
+
+
+def test_tracks_a_translating_texture_to_a_tenth_of_a_pixel():
+    frames, truth = moving_texture(12, step=(2.3, -1.4))
+    p0 = np.array([[40.0, 40.0], [70.0, 50.0], [55.0, 30.0]])
+    tracks = track(frames, p0)
+    assert (tracks.status == MEASURED).all()
+    expected = np.stack([truth(p0, k) for k in range(12)])
+    # The posterior blends measurement and prediction; both are exact for constant velocity.
+    assert np.abs(tracks.positions[2:] - expected[2:]).max() < 0.1
+    assert tracks.track_ids.tolist() == [0, 1, 2]
+    # state velocity converges to the true motion
+    np.testing.assert_allclose(tracks.states[-1, :, 2:], [[2.3, -1.4]] * 3, atol=0.1)
+
+
+def occlude(frames, point_truth, frame_range, value=0.0):
+    out = [f.copy() for f in frames]
+    for k in frame_range:
+        x, y = np.round(point_truth(k)).astype(int)
+        out[k][y - 8 : y + 9, x - 8 : x + 9] = value
+    return out
+
+
+def test_coasts_through_a_short_occlusion_and_resumes_with_its_identity():
+    frames, truth = moving_texture(14, step=(1.5, 0.5))
+    p0 = np.array([[40.0, 40.0], [80.0, 45.0]])
+    hidden = occlude(frames, lambda k: truth(p0[0], k), range(5, 8))  # 3 frames
+    tracks = track(hidden, p0, track_ids=[10, 20])
+    assert tracks.track_ids.tolist() == [10, 20]
+    assert tracks.status[5:8, 0].tolist() == [PREDICTED] * 3
+    assert tracks.status[8:, 0].tolist() == [MEASURED] * 6  # re-acquired
+    assert (tracks.status[:, 1] == MEASURED).all()
+    assert np.abs(tracks.positions[-1, 0] - truth(p0[0], 13)).max() < 0.2
+    # coasting rows hold the prediction and a larger covariance than before
+    assert np.isfinite(tracks.positions[5:8, 0]).all()
+    assert tracks.covariances[7, 0, 0, 0] > tracks.covariances[4, 0, 0, 0]
+
+
+def test_lost_after_max_misses_then_no_track():
+    frames, truth = moving_texture(12, step=(1.5, 0.5))
+    p0 = np.array([[40.0, 40.0], [80.0, 45.0]])
+    hidden = occlude(frames, lambda k: truth(p0[0], k), range(4, 12))
+    tracks = track(hidden, p0, max_misses=2)
+    assert tracks.status[:, 0].tolist() == [1, 1, 1, 1, 2, 2, LOST, 0, 0, 0, 0, 0]
+    assert np.isnan(tracks.positions[6:, 0]).all()
+    assert np.isnan(tracks.covariances[6:, 0]).all()
+    assert (tracks.status[:, 1] == MEASURED).all()
+
+
+def test_redetect_adds_tracks_with_new_ids_in_empty_regions():
+    frames, _ = moving_texture(8, step=(3.0, 0.0))
+    tracks = track(frames, np.array([[60.0, 45.0]]), redetect=True, redetect_every=2, max_features=15)
+    assert tracks.n_tracks > 1
+    assert len(set(tracks.track_ids.tolist())) == tracks.n_tracks
+    assert tracks.track_ids[0] == 0
+    # a new track exists only from the frame where it was detected
+    first = np.argmax(tracks.status != NO_TRACK, axis=0)
+    assert first[0] == 0 and first[1:].min() >= 2
+
+
+def test_streaming_gives_the_same_tracks_as_the_batch_function():
+    frames, _ = moving_texture(6)
+    p0 = np.array([[40.0, 40.0]])
+    tracker = Tracker(p0)
+    for f in frames:
+        estimate = tracker.feed(f)
+    np.testing.assert_array_equal(estimate.positions, track(frames, p0).positions[-1])
+
+
+def test_bad_inputs():
+    frames, _ = moving_texture(3)
+    with pytest.raises(InvalidInputError, match="points row 1"):
+        track(frames, np.array([[10.0, 10.0], [500.0, 10.0]]))
+    with pytest.raises(InvalidInputError, match="frame 2 has size"):
+        track([frames[0], frames[1], frames[2][:50]], np.array([[40.0, 40.0]]))
+    with pytest.raises(NotEnoughDataError, match="at least 3 frames"):
+        track(frames[:2], np.array([[40.0, 40.0]]))
+    with pytest.raises(InvalidInputError, match="window"):
+        Tracker(window=10)
+
+
+def test_builtin_scene_accuracy_and_occluder():
+    scene = render_scene()
+    start = scene.visible[0]
+    tracks = track(scene.frames, scene.positions[0, start])
+    visible = scene.visible[:, start]
+    error = np.linalg.norm(tracks.positions - scene.positions[:, start], axis=2)[visible]
+    assert np.isfinite(error).all()
+    assert np.sqrt(np.mean(error**2)) <= 0.5
+    assert np.mean(error <= 2) >= 0.97
+    # Report, Figure 1: the mean posterior trace levels off at about 28.85 (all tracks measured).
+    assert (tracks.status == MEASURED).all()
+    assert tracks.mean_covariance_trace()[-1] == pytest.approx(28.85, abs=0.02)
+
+    occluded = render_scene(n_frames=16, occluder=Occluder(track_id=0, first_frame=8, n_frames=3))
+    start = occluded.visible[0]
+    tracks = track(occluded.frames, occluded.positions[0, start], track_ids=occluded.track_ids[start])
+    col = int(np.flatnonzero(tracks.track_ids == 0)[0])
+    hidden = ~occluded.visible[:, 0]
+    assert (tracks.status[hidden, col] == PREDICTED).all()
+    assert (tracks.status[11:, col] == MEASURED).all()
+    assert np.linalg.norm(tracks.positions[-1, col] - occluded.positions[-1, 0]) < 1.0
+
+
+def test_cmu_house_slice_within_3px_of_the_labels():
+    n = 15
+    frames = [cv2.imread(str(HOUSE / "images" / f"house.seq{k}.png"), cv2.IMREAD_GRAYSCALE) for k in range(n)]
+    labels = np.stack([np.loadtxt(HOUSE / "labels" / f"house{k + 1}") for k in range(n)]) - 1.0
+    tracks = track(frames, labels[0], score="ncc")
+    error = np.linalg.norm(tracks.positions - labels, axis=2)
+    assert (tracks.status == MEASURED).all()
+    assert np.mean(error <= 3) >= 0.95
+    assert np.median(error) < 1.5
