@@ -21,7 +21,7 @@ from .. import __version__
 from ..errors import KalmanSfmError
 
 # Order shown in --help.
-SUBCOMMANDS = ["track", "reconstruct", "report", "tables", "consistency", "scene"]
+SUBCOMMANDS = ["demo", "track", "reconstruct", "report", "batch", "tables", "consistency", "scene"]
 
 log = logging.getLogger("kalmansfm")
 
@@ -62,11 +62,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line with ``argv`` (default ``sys.argv[1:]``) and return the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.WARNING if getattr(args, "quiet", False) else logging.INFO,
-        format="%(message)s",
-        stream=sys.stderr,
-    )
+    # Configure our own logger only: libraries we call (Dask, Matplotlib) keep their defaults.
+    if not log.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        log.addHandler(handler)
+        log.propagate = False
+    log.setLevel(logging.WARNING if getattr(args, "quiet", False) else logging.INFO)
     prog = f"kalmansfm {args.command}"
     try:
         return int(args.run(args) or 0)

@@ -101,6 +101,55 @@ def _number(value: float) -> str:
     return "" if not np.isfinite(value) else repr(float(value))
 
 
+def scene_files(scene: Scene, *, frames: bool = True) -> dict[str, bytes | str]:
+    """The files of a scene folder by name: frame PNGs (bytes) and ground-truth CSVs (text).
+
+    ``frames=False`` leaves the PNGs out (the ground truth alone).
+    """
+    n_frames, n_points = scene.visible.shape
+    files: dict[str, bytes | str] = {}
+    if frames:
+        for f in range(n_frames):
+            ok, png = cv2.imencode(".png", scene.frames[f])
+            if not ok:  # pragma: no cover - OpenCV always encodes uint8 grey images
+                raise RuntimeError(f"could not encode frame {f} as PNG")
+            files[frame_name(f, n_frames)] = png.tobytes()
+    ids = scene.track_ids
+    tracks = (
+        (f, int(ids[p]), _number(scene.positions[f, p, 0]), _number(scene.positions[f, p, 1]), int(scene.visible[f, p]))
+        for f in range(n_frames)
+        for p in range(n_points)
+    )
+    points = ((int(ids[p]), *(_number(v) for v in scene.points_3d[p])) for p in range(n_points))
+    motion = (
+        (f, *(_number(v) for v in scene.rotations[f, :2].ravel()), *(_number(v) for v in scene.translations[f]),
+         _number(scene.scale))
+        for f in range(n_frames)
+    )
+    start = (
+        (int(ids[p]), _number(scene.positions[0, p, 0]), _number(scene.positions[0, p, 1]))
+        for p in range(n_points)
+        if scene.visible[0, p]
+    )
+    files[TRACKS_FILE] = _csv_text(["frame", "track_id", "x", "y", "visible"], tracks)
+    files[POINTS_FILE] = _csv_text(["track_id", "X", "Y", "Z"], points)
+    files[MOTION_FILE] = _csv_text(MOTION_COLUMNS, motion)
+    files[START_POINTS_FILE] = _csv_text(["track_id", "x", "y"], start)
+    if scene.occluder_boxes is not None and np.isfinite(scene.occluder_boxes).any():
+        marker = (
+            scene.occluder_marker_positions
+            if scene.occluder_marker_positions is not None
+            else np.full((n_frames, 2), np.nan)
+        )
+        rows = (
+            (f, *(_number(v) for v in scene.occluder_boxes[f]), *(_number(v) for v in marker[f]))
+            for f in range(n_frames)
+        )
+        header = ["frame", "x0", "y0", "x1", "y1", "marker_x", "marker_y"]
+        files[OCCLUDER_FILE] = _csv_text(header, rows)
+    return files
+
+
 def write_scene(scene: Scene, path: str | os.PathLike[str]) -> list[Path]:
     """Write a scene's frames as PNG and its ground truth as CSV into the folder ``path``.
 
@@ -124,51 +173,13 @@ def write_scene(scene: Scene, path: str | os.PathLike[str]) -> list[Path]:
     """
     from .. import __version__
 
-    n_frames, n_points = scene.visible.shape
-    encoded = []
-    for f in range(n_frames):
-        ok, png = cv2.imencode(".png", scene.frames[f])
-        if not ok:  # pragma: no cover - OpenCV always encodes uint8 grey images
-            raise RuntimeError(f"could not encode frame {f} as PNG")
-        encoded.append(png.tobytes())
-
-    ids = scene.track_ids
-    tracks = (
-        (f, int(ids[p]), _number(scene.positions[f, p, 0]), _number(scene.positions[f, p, 1]), int(scene.visible[f, p]))
-        for f in range(n_frames)
-        for p in range(n_points)
-    )
-    points = ((int(ids[p]), *(_number(v) for v in scene.points_3d[p])) for p in range(n_points))
-    motion = (
-        (f, *(_number(v) for v in scene.rotations[f, :2].ravel()), *(_number(v) for v in scene.translations[f]),
-         _number(scene.scale))
-        for f in range(n_frames)
-    )
-    start = (
-        (int(ids[p]), _number(scene.positions[0, p, 0]), _number(scene.positions[0, p, 1]))
-        for p in range(n_points)
-        if scene.visible[0, p]
-    )
+    files = scene_files(scene)
     summary = {"command": "scene", "kalmansfm_version": __version__, "parameters": scene.parameters}
-
     with output_directory(path) as out:
-        written = [out.write_bytes(frame_name(f, n_frames), png) for f, png in enumerate(encoded)]
-        written.append(out.write_text(TRACKS_FILE, _csv_text(["frame", "track_id", "x", "y", "visible"], tracks)))
-        written.append(out.write_text(POINTS_FILE, _csv_text(["track_id", "X", "Y", "Z"], points)))
-        written.append(out.write_text(MOTION_FILE, _csv_text(MOTION_COLUMNS, motion)))
-        written.append(out.write_text(START_POINTS_FILE, _csv_text(["track_id", "x", "y"], start)))
-        if scene.occluder_boxes is not None and np.isfinite(scene.occluder_boxes).any():
-            marker = (
-                scene.occluder_marker_positions
-                if scene.occluder_marker_positions is not None
-                else np.full((n_frames, 2), np.nan)
-            )
-            rows = (
-                (f, *(_number(v) for v in scene.occluder_boxes[f]), *(_number(v) for v in marker[f]))
-                for f in range(n_frames)
-            )
-            header = ["frame", "x0", "y0", "x1", "y1", "marker_x", "marker_y"]
-            written.append(out.write_text(OCCLUDER_FILE, _csv_text(header, rows)))
+        written = [
+            out.write_bytes(name, data) if isinstance(data, bytes) else out.write_text(name, data)
+            for name, data in files.items()
+        ]
         written.append(out.write_text("summary.json", json.dumps(summary, indent=2) + "\n"))
     return written
 

@@ -1,0 +1,80 @@
+"""The whole job on the built-in scene: frames → tracks → structure → report, checked against ground truth."""
+
+import json
+
+import numpy as np
+import pytest
+
+from kalmansfm.cli.main import main
+from kalmansfm.pipeline import run_pipeline
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    return run_pipeline(tmp_path_factory.mktemp("demo") / "run", seed=0, html=False)
+
+
+def test_demo_writes_every_output_file(demo_run):
+    names = {p.name for p in demo_run.out_dir.iterdir()}
+    expected = {
+        "tracks.csv", "tracks.npz", "covariance_trace.png", "tracks.png", "structure.csv", "structure.ply",
+        "structure.png", "motion.csv", "summary.json", "ground_truth_tracks.csv", "ground_truth_points.csv",
+        "frames",
+    }
+    assert expected <= names
+    assert len(list((demo_run.out_dir / "frames").glob("frame_*.png"))) == 30
+    assert not [n for n in names if n.endswith(".tmp")]
+
+
+def test_demo_meets_the_tracking_and_shape_targets(demo_run):
+    """Issue targets on the built-in scene: RMS ≤ 0.5 px, ≥ 97 % within 2 px, shape error ≤ 2 % of the radius."""
+    s = json.loads((demo_run.out_dir / "summary.json").read_text())
+    assert s["ground_truth"] is True
+    assert s["tracking"]["rms_error_px"] <= 0.5
+    assert s["tracking"]["within_2px"] >= 0.97
+    assert s["factorization"]["shape_error_pct"] <= 2.0
+    # the recovered cameras turn like the true ones (a few degrees at most)
+    assert max(a for a in s["factorization"]["rotation_error_deg"] if a is not None) < 5.0
+
+
+def test_summary_matches_the_returned_objects(demo_run):
+    s = demo_run.summary
+    assert s["tracking"]["tracks"] == demo_run.tracks.track_ids.size
+    np.testing.assert_allclose(s["factorization"]["singular_values"], demo_run.reconstruction.singular_values)
+    assert len(s["tracking"]["per_track"]) == demo_run.tracks.track_ids.size
+
+
+def test_demo_command_prints_the_summary_and_the_report_path(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--frames", "12", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "tracking:" in printed and "structure:" in printed and f"report: {out / 'report.html'}" in printed
+    html = (out / "report.html").read_text()
+    assert html.startswith("<!DOCTYPE html>") and "data:image/png;base64," in html
+
+
+def test_demo_on_a_real_sequence_has_no_ground_truth_section(tmp_path, capsys):
+    from pathlib import Path
+    import shutil
+
+    source = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cmu_house" / "images"
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(8):
+        shutil.copy(source / f"house.seq{k}.png", frames / f"house.seq{k}.png")
+    assert main(["demo", "--input", str(frames), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    s = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert s["ground_truth"] is False and s["tracking"]["rms_error_px"] is None
+    assert s["tracking"]["tracks"] >= 20
+    assert "within" not in capsys.readouterr().out
+
+
+def test_a_failed_run_leaves_the_previous_results(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "summary.json").write_text("previous")
+    assert main(["demo", "--input", str(tmp_path / "missing"), "--out", str(out), "--quiet"]) == 2
+    assert (out / "summary.json").read_text() == "previous"
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "missing" in err
