@@ -279,7 +279,7 @@ def run_pipeline(
     Examples
     --------
     >>> import tempfile, pathlib
-    >>> run = run_pipeline(pathlib.Path(tempfile.mkdtemp()) / "demo", n_frames=12, html=False)
+    >>> run = run_pipeline(pathlib.Path(tempfile.mkdtemp()) / "demo", html=False)
     >>> sorted(p.name for p in run.out_dir.iterdir() if p.suffix == ".csv")
     ['ground_truth_motion.csv', 'ground_truth_points.csv', 'ground_truth_tracks.csv', 'motion.csv', \
 'points.csv', 'structure.csv', 'tracks.csv']
