@@ -113,7 +113,7 @@ def predict(X: np.ndarray, C: np.ndarray, dt: float, q: np.ndarray, u: np.ndarra
         if C.ndim == 3:
             c = C[:, :, sl]
             o = Cn[:, :, sl]
-            _predict_cov(c[:, 0], c[:, 1], c[:, 2], dt, qb, o[:, 0], o[:, 1], o[:, 2], tmp[:1, :k])
+            _predict_cov(c[:, 0], c[:, 1], c[:, 2], dt, qb, o[:, 0], o[:, 1], o[:, 2], tmp[: C.shape[0], :k])
     return Xn, Cn
 
 
