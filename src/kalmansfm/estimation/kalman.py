@@ -60,11 +60,30 @@ def kalman_predict(
     -------
     x_prior, P_prior : the predicted states and covariances (new arrays).
     """
-    x_prior = np.einsum("...ij,...j->...i", F, x)
+    x_prior = x @ F.T if F.ndim == 2 else _mat_vec(F, x)
     if u is not None:
         x_prior = x_prior + u
-    P_prior = _symmetrize(F @ P @ np.swapaxes(F, -1, -2) + Q)
+    if F.ndim == 2 and P.ndim == 3:
+        # F P Fᵀ with a shared F as two GEMMs over the whole stack: P Fᵀ, then (F P) Fᵀ where
+        # F P = (P Fᵀ)ᵀ because P is symmetric.
+        FP = np.ascontiguousarray(np.swapaxes(_times_transposed(P, F), -1, -2))
+        FPF = _times_transposed(FP, F)
+    else:
+        FPF = F @ P @ np.swapaxes(F, -1, -2)
+    P_prior = _symmetrize(FPF + Q)
     return x_prior, P_prior
+
+
+def _times_transposed(A: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """A Mᵀ for a stack A (..., p, q) and a shared M (r, q), as one GEMM over the stack.
+
+    NumPy's stacked matmul handles a 4×4 product in ~80 ns; reshaping the stack into one
+    (.. · p, q) matrix lets BLAS do it in ~17 ns.
+    """
+    if M.ndim == 2 and A.ndim > 2:
+        A = np.ascontiguousarray(A)
+        return (A.reshape(-1, A.shape[-1]) @ M.T).reshape(*A.shape[:-1], M.shape[0])
+    return A @ np.swapaxes(M, -1, -2)
 
 
 @dataclass(frozen=True)
@@ -156,25 +175,49 @@ def _mat_vec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def _gain_and_posterior(
-    x: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray, joseph: bool = True
+    x: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    joseph: bool = True,
+    measured_rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Dense update of filters that measured every component of ``z``.
 
     ``P``, ``H`` and ``R`` may be shared ((n, n), (m, n), (m, m)) or stacked
     ((k, n, n), (k, m, n), (k, m, m)); the outputs broadcast accordingly.
+    ``measured_rows`` (k,) bool, if given, marks the filters that really measured:
+    the others get a zero gain, so their posterior is exactly their prior, and
+    NaN innovation statistics (their rows of ``z`` may hold anything finite).
     """
-    Ht = np.swapaxes(H, -1, -2)
-    HP = H @ P
-    S = _symmetrize(HP @ Ht + R)
+    stacked_P = P.ndim == 3
+    if H.ndim == 2 and stacked_P:
+        PHt = _times_transposed(P, H)  # P Hᵀ (k, n, m)
+        HP = np.ascontiguousarray(np.swapaxes(PHt, -1, -2))  # H P = (P Hᵀ)ᵀ, P symmetric
+        HPHt = _times_transposed(HP, H)
+    else:
+        HP = H @ P
+        HPHt = HP @ np.swapaxes(H, -1, -2)
+    S = _symmetrize(HPHt + R)
     L = _cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
     # K = P Hᵀ S⁻¹ = (S⁻¹ H P)ᵀ with S⁻¹ = L⁻ᵀ L⁻¹ (S and P are symmetric).
-    K = np.swapaxes(_solve_upper_transposed(L, _solve_lower(L, HP)), -1, -2)
-    y = z - _mat_vec(H, x)
-    x_post = x + _mat_vec(K, y)
-    A = np.eye(P.shape[-1], dtype=P.dtype) - K @ H
+    Kt = _solve_upper_transposed(L, _solve_lower(L, HP))
+    if measured_rows is not None:
+        Kt = Kt * measured_rows[:, None, None]
+    K = np.swapaxes(Kt, -1, -2)
+    y = z - (x @ H.T if H.ndim == 2 else _mat_vec(H, x))
+    # x = x⁻ + K y, written as a sum over the m components (cheaper than a stack of tiny matmuls)
+    x_post = x + np.sum(K * y[..., None, :], axis=-1)
+    if H.ndim == 2 and Kt.ndim == 3:
+        KH = _times_transposed(np.ascontiguousarray(K), H.T)
+    else:
+        KH = K @ H
+    A = np.eye(P.shape[-1], dtype=P.dtype) - KH
     if joseph:
         # Joseph form: P = (I - KH) P (I - KH)ᵀ + K R Kᵀ, symmetric PSD even when K is not optimal.
-        P_post = _symmetrize(A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2))
+        KR = _times_transposed(np.ascontiguousarray(K), R) if R.ndim == 2 else K @ R
+        P_post = _symmetrize(A @ P @ np.swapaxes(A, -1, -2) + KR @ Kt)
     else:
         # Simple form: P = (I - KH) P, exact only for the optimal gain.
         P_post = _symmetrize(A @ P)
@@ -183,6 +226,10 @@ def _gain_and_posterior(
     nis = np.sum(w * w, axis=-1)
     log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
     log_likelihood = -0.5 * (nis + log_det + H.shape[-2] * _LOG_2PI)
+    if measured_rows is not None:
+        y = np.where(measured_rows[:, None], y, np.nan)
+        nis = np.where(measured_rows, nis, np.nan)
+        log_likelihood = np.where(measured_rows, log_likelihood, np.nan)
     return x_post, P_post, y, S, K, nis, log_likelihood
 
 
@@ -247,11 +294,16 @@ def kalman_update(
     P_each = np.broadcast_to(P, (N, n, n))
     R_each = np.broadcast_to(R, (N, m, m))
     H_each = np.broadcast_to(H, (N, m, n))
+    rows_complete_or_empty = bool((measured == full[:, None]).all())
+    if rows_complete_or_empty and P.ndim == 3:
+        # Rows are either complete or empty: one pass over all filters with a zero gain for
+        # the empty rows (no gather/scatter by pattern).
+        z_filled = np.where(measured, z, 0.0) if not full.all() else z
+        x_post, P_post, y, S, K, nis, ll = _gain_and_posterior(
+            x, P, z_filled, H, R, joseph, None if full.all() else full)
+        return UpdateResult(x_post, P_post, y, np.broadcast_to(S, (N, m, m)), K, nis, ll, measured)
     S = _symmetrize(H_each @ P_each @ np.swapaxes(H_each, -1, -2) + R_each)
     groups = _measurement_patterns(measured)
-    if len(groups) == 1 and groups[0][1].size == m and groups[0][0].size == N:
-        x_post, P_post, y, _, K, nis, ll = _gain_and_posterior(x, P_each, z, H_each, R_each, joseph)
-        return UpdateResult(x_post, P_post, y, S, K, nis, ll, measured)
 
     x_post = x.copy()
     P_post = np.array(P_each, copy=True)
