@@ -133,8 +133,7 @@ def _predict_cov(p00, p01, p11, dt, q, o00, o01, o11, tmp) -> None:
 class DecoupledUpdate:
     """What one decoupled update produced, expanded to the public (N, ...) arrays on access."""
 
-    def __init__(self, X_prior, C_prior, Y, r, missing, N):
-        self._X_prior = X_prior
+    def __init__(self, C_prior, Y, r, missing, N):
         self._C_prior = C_prior
         self._Y = Y  # (2, N) z - H x⁻, NaN where not measured
         self._r = r  # (2,) or (2, N) measurement variances of x and y
@@ -254,7 +253,7 @@ def update(
             np.add(X[0:2, sl], tmp[:, :k], out=Xn[0:2, sl])
             np.multiply(y, gk[:, 1:], out=tmp[:, :k])
             np.add(X[2:4, sl], tmp[:, :k], out=Xn[2:4, sl])
-        return Xn, Cn, DecoupledUpdate(X, C, Y, r, missing_z, N)
+        return Xn, Cn, DecoupledUpdate(C, Y, r, missing_z, N)
 
     Cn = np.empty((B, 3, N), dtype=X.dtype)
     Xn = np.empty_like(X)
@@ -289,7 +288,7 @@ def update(
                 np.add(X[a + 2, sl], t[5], out=Xn[a + 2, sl])
     if not np.all(np.isfinite(Cn[:, 0])):
         raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
-    return Xn, Cn, DecoupledUpdate(X, C, Y, r, missing_z, N)
+    return Xn, Cn, DecoupledUpdate(C, Y, r, missing_z, N)
 
 
 def _joseph_or_simple(p00, p01, p11, r, s, k0, k1, joseph):

@@ -739,6 +739,7 @@ class KalmanFilter:
             check_finite("u", u_arr)
             offset = u_arr
         self._last_F = F_arr
+        self._dense_cache = {}  # assembled (N, 4, 4) covariances of the previous step
         if self._fast is not None:
             parts = self._decoupled_motion(F_arr, Q_arr)
             if parts is not None:
@@ -747,6 +748,7 @@ class KalmanFilter:
                 if C.shape[0] == 1 and not np.array_equal(q[0], q[1]):
                     C = np.concatenate([C, C])
                 qb = q[:1] if C.shape[0] == 1 else q
+                self._fast_prior = None  # release the old prior before the new one is allocated
                 self._fast = self._fast_prior = _decoupled.predict(X, C, dt, qb, None if offset is None else offset.T)
                 return
             self._to_dense()
@@ -776,6 +778,7 @@ class KalmanFilter:
             if H_arr.shape[-2] != self.dim_z:
                 raise InvalidInputError(f"H must keep the measurement dimension {self.dim_z}; got {H_arr.shape}")
         R_arr = self.R if R is None else self._measurement_noise(R)
+        self._dense_cache.pop("P", None)
         if self._fast is not None:
             r = self._decoupled_measurement(H_arr, R_arr)
             if r is not None:
