@@ -382,8 +382,7 @@ def innovation_statistics(
     L = _cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
     y = Z - _mat_vec(H, x_prior)[:, None, :]
     # |L⁻¹ y|² for all K candidates at once: solve with the K candidates as columns.
-    L_each = L if L.ndim == 2 else L
-    w = _solve_lower(L_each, np.swapaxes(y, -1, -2))
+    w = _solve_lower(L, np.swapaxes(y, -1, -2))
     nis = np.sum(w * w, axis=-2)
     log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
     ll = -0.5 * (nis + np.asarray(log_det)[..., None] + H.shape[-2] * _LOG_2PI)
@@ -404,9 +403,9 @@ class KalmanFilter:
     H : (m, n) measurement matrix, or (N, m, n) one per filter.
     Q : (n, n) process noise covariance, or (N, n, n).
     R : (m, m) measurement noise covariance, or (N, m, m) one per filter.
-    dtype : ``np.float64`` (default) or ``np.float32`` (half the memory; the
-        states of the constant-velocity model stay within 1e-6 relative /
-        1e-3 px of float64 over 100 steps at pixel scale, see ``docs/kalman.md``).
+    dtype : ``np.float64`` (default) or ``np.float32`` (half the memory; on the
+        constant-velocity model at pixel scale the states stay within 3e-4 px of
+        float64 over 100 steps, tested < 2e-3 px, see ``docs/kalman.md``).
     joseph : Joseph-form covariance update (default, keeps P symmetric PSD);
         False uses P = (I - K H) P, which is cheaper.
 
@@ -770,7 +769,9 @@ class KalmanFilter:
         """
         z_arr = np.atleast_2d(self._array("z", z))
         check_shape("z", z_arr, (self.n_filters, self.dim_z), "(one measurement row per filter, NaN = missing)")
-        if np.isinf(z_arr).any():
+        finite = np.isfinite(z_arr)  # one pass finds both missing components and infinities
+        all_finite = bool(finite.all())
+        if not all_finite and np.isinf(z_arr).any():
             raise InvalidInputError("z must not contain infinity (use NaN for a missing measurement)")
         H_arr = self.H
         if H is not None:
@@ -783,7 +784,8 @@ class KalmanFilter:
             r = self._decoupled_measurement(H_arr, R_arr)
             if r is not None:
                 X, C = self._fast
-                X_new, C_new, stats = _decoupled.update(X, C, z_arr, r, self.joseph)
+                missing = None if all_finite else ~finite
+                X_new, C_new, stats = _decoupled.update(X, C, z_arr, r, self.joseph, missing)
                 self._fast_prior = (X, stats._C_prior)
                 self._fast = (X_new, C_new)
                 self._last = stats

@@ -59,6 +59,9 @@ def test_compact_storage_keeps_three_numbers_per_block_and_splits_x_from_y_only_
     kf.predict()
     kf.update(np.zeros((N, 2)))
     assert kf.shared_covariance and kf._fast[1].shape == (1, 3)
+    S = m.H @ (m.F @ m.P0 @ m.F.T + m.Q) @ m.H.T + m.R
+    np.testing.assert_allclose(kf.S, np.broadcast_to(S, (N, 2, 2)), rtol=1e-14)
+    np.testing.assert_allclose(kf.nis, 0.0, atol=0)  # measured exactly at the prediction
     z = np.zeros((N, 2))
     z[::3] = np.nan
     kf.predict()
