@@ -135,7 +135,7 @@ class DecoupledUpdate:
 
     def __init__(self, C_prior, Y, r, missing, N):
         self._C_prior = C_prior
-        self._Y = Y  # (2, N) z - H x⁻, NaN where not measured
+        self._Y = Y  # (2, N) z - H x⁻, 0 where not measured (NaN restored by the y property)
         self._r = r  # (2,) or (2, N) measurement variances of x and y
         self._missing = missing  # (N, 2) bool
         self._N = N
@@ -163,7 +163,12 @@ class DecoupledUpdate:
 
     @property
     def y(self) -> np.ndarray:
-        return self._Y.T
+        if "y" not in self._cache:
+            Y = self._Y
+            if self._missing is not None:
+                Y = np.where(self._missing.T, np.nan, Y)
+            self._cache["y"] = Y.T
+        return self._cache["y"]
 
     @property
     def S(self) -> np.ndarray:
@@ -260,14 +265,17 @@ def update(
     Cn = np.empty((B, 3, N), dtype=X.dtype)
     Xn = np.empty_like(X)
     rb_all = r if B == 2 else r[:1]
-    buf = np.empty((9, min(N, CHUNK)), dtype=X.dtype)
-    miss_buf = np.empty((2, min(N, CHUNK)), dtype=bool)
+    buf = np.empty((8, min(N, CHUNK)), dtype=X.dtype)
+    both = np.empty((2, min(N, CHUNK)), dtype=X.dtype)
     for sl in _chunks(N):
-        t = buf[:, : sl.stop - sl.start]
-        s, g, k0, k1, y = t[0], t[1], t[2], t[3], t[4]
-        np.subtract(z[sl].T, X[0:2, sl], out=Y[:, sl])
+        k = sl.stop - sl.start
+        t = buf[:, :k]
+        s, g, k0, k1 = t[0], t[1], t[2], t[3]
+        # Y = z - H x⁻, stored with 0 where not measured (the y property puts the NaN back)
+        Ys = np.subtract(z[sl].T, X[0:2, sl], out=Y[:, sl])
         if any_missing:
-            missing = np.isnan(Y[:, sl], out=miss_buf[:, : sl.stop - sl.start])
+            missing = missing_z[sl].T
+            np.copyto(Ys, 0.0, where=missing)
         for b in range(B):
             c = C[b] if C.ndim == 2 else C[b, :, sl]
             p00, p01, p11 = c[0], c[1], c[2]
@@ -279,16 +287,14 @@ def update(
                 np.copyto(g, 0.0, where=missing[b])
             np.multiply(p00, g, out=k0)
             np.multiply(p01, g, out=k1)
-            _block_update_inplace(p00, p01, p11, rb, s, k0, k1, Cn[b, :, sl], t[5:9], joseph)
-            for a in [b] if B == 2 else [0, 1]:
-                # x = x⁻ + k0 y, v = v⁻ + k1 y with y = 0 where not measured
-                np.copyto(y, Y[a, sl])
-                if any_missing:
-                    np.copyto(y, 0.0, where=missing[a])
-                np.multiply(k0, y, out=t[5])
-                np.add(X[a, sl], t[5], out=Xn[a, sl])
-                np.multiply(k1, y, out=t[5])
-                np.add(X[a + 2, sl], t[5], out=Xn[a + 2, sl])
+            _block_update_inplace(p00, p01, p11, rb, s, k0, k1, Cn[b, :, sl], t[4:8], joseph)
+            # x = x⁻ + k0 y, v = v⁻ + k1 y (both axes at once when they share the block)
+            rows = slice(b, b + 1) if B == 2 else slice(0, 2)
+            tmp = both[: rows.stop - rows.start, :k]
+            np.multiply(k0, Ys[rows], out=tmp)
+            np.add(X[rows, sl], tmp, out=Xn[rows, sl])
+            np.multiply(k1, Ys[rows], out=tmp)
+            np.add(X[rows.start + 2 : rows.stop + 2, sl], tmp, out=Xn[rows.start + 2 : rows.stop + 2, sl])
     if not np.all(np.isfinite(Cn[:, 0])):
         raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
     return Xn, Cn, DecoupledUpdate(C, Y, r, missing_z, N)
