@@ -227,8 +227,8 @@ def update(
     N = X.shape[1]
     any_missing = missing_z is not None and bool(missing_z.any())
     partial = any_missing and bool(np.any(missing_z[:, 0] != missing_z[:, 1]))
-    # Y (2, N) = z - H x⁻ (NaN where missing) is filled chunk by chunk: transposing z
-    # inside the cache costs ~1 ns per track, over the whole array ~40 ns.
+    # Y (2, N) = z - H x⁻ is filled chunk by chunk: transposing z inside the cache costs
+    # ~1 ns per track, over the whole array ~40 ns.
     Y = np.empty((2, N), dtype=X.dtype)
     r_differs = not np.array_equal(r[0], r[1])
     if C.shape[0] == 1 and (partial or r_differs):
@@ -242,11 +242,11 @@ def update(
             p00, p01, p11 = C[b]
             rb = r[b] if B == 2 else r[0]
             s = p00 + rb
+            if not s > 0:
+                raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
             g1 = 1.0 / s
             # same operation order as the per-filter kernel, so shared and per-filter runs agree bitwise
             k0, k1 = p00 * g1, p01 * g1
-            if not s > 0:
-                raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
             Cn[b] = _joseph_or_simple(p00, p01, p11, rb, s, k0, k1, joseph)
             g[b] = k0, k1
         gk = np.concatenate([g, g]) if B == 1 else g

@@ -461,7 +461,10 @@ class KalmanFilter:
         dtype: type | np.dtype = np.float64,
         joseph: bool = True,
     ) -> None:
-        self.dtype = np.dtype(dtype)
+        try:
+            self.dtype = np.dtype(dtype)
+        except TypeError:
+            raise InvalidInputError(f"dtype must be float64 or float32; got {dtype!r}") from None
         if self.dtype not in (np.dtype(np.float64), np.dtype(np.float32)):
             raise InvalidInputError(f"dtype must be float64 or float32; got {self.dtype}")
         self.joseph = bool(joseph)
