@@ -160,3 +160,20 @@ def test_smooth_rejects_bad_arguments():
         KalmanFilter(np.zeros((2, 4)), m.P0, m.F, m.H, m.Q, m.R).run(np.zeros((3, 5, 2)))
     with pytest.raises(InvalidInputError, match="one matrix per step"):
         KalmanFilter(np.zeros((2, 4)), m.P0, m.F, m.H, m.Q, m.R).run(np.zeros((3, 2, 2)), F=m.F)
+
+
+def test_per_filter_transitions_are_smoothed_filter_by_filter():
+    rng = np.random.default_rng(8)
+    dts = np.array([0.5, 1.5])
+    Fs = np.stack([constant_velocity_2d(dt=dt).F for dt in dts])
+    m = constant_velocity_2d()
+    x0 = rng.normal(size=(2, 4))
+    zs = rng.normal(scale=3, size=(7, 2, 2))
+    zs[3, 0] = np.nan
+    run = KalmanFilter(x0, m.P0, Fs, m.H, m.Q, m.R).run(zs)
+    assert run.F.shape == (7, 2, 4, 4)
+    together = smooth(run)
+    for i in range(2):
+        mean, cov = gls_smoother(x0[i], m.P0, zs[:, i], Fs[i], m.H, m.Q, m.R)
+        np.testing.assert_allclose(together.x[:, i], mean[1:], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(together.P[:, i], cov[1:], rtol=1e-9, atol=1e-9)
