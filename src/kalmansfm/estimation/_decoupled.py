@@ -90,7 +90,9 @@ def _chunks(N: int):
         yield slice(start, min(start + CHUNK, N))
 
 
-def predict(X: np.ndarray, C: np.ndarray, dt: float, q: np.ndarray, u: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def predict(
+    X: np.ndarray, C: np.ndarray, dt: float, q: np.ndarray, u: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
     """x⁻ = F x + u and, per block, P⁻ = A P Aᵀ + Q_b with A = [[1, dt], [0, 1]].
 
     ``q`` (B, 3) process noise blocks (matching C's B), ``u`` None or (4,) or (4, N).

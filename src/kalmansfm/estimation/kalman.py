@@ -800,7 +800,9 @@ class KalmanFilter:
         self._last = result
 
     # -- statistics from the prior, batch runs ---------------------------------------
-    def innovation_statistics(self, z: object, R: object | None = None, H: object | None = None) -> InnovationStatistics:
+    def innovation_statistics(
+        self, z: object, R: object | None = None, H: object | None = None
+    ) -> InnovationStatistics:
         """Innovation, S, squared Mahalanobis distance and log-likelihood of candidates under the prior.
 
         Uses the state after the last ``predict`` (``x_prior``, ``P_prior``) and
