@@ -19,9 +19,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError, SingularCovarianceError
+from . import _decoupled
 from ._checks import as_float_array, check_covariance, check_finite, check_shape
+from .smoothing import FilterRun
 
-__all__ = ["KalmanFilter", "UpdateResult", "kalman_predict", "kalman_update"]
+__all__ = [
+    "InnovationStatistics",
+    "KalmanFilter",
+    "UpdateResult",
+    "innovation_statistics",
+    "kalman_predict",
+    "kalman_update",
+]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -51,11 +60,30 @@ def kalman_predict(
     -------
     x_prior, P_prior : the predicted states and covariances (new arrays).
     """
-    x_prior = np.einsum("...ij,...j->...i", F, x)
+    x_prior = x @ F.T if F.ndim == 2 else _mat_vec(F, x)
     if u is not None:
         x_prior = x_prior + u
-    P_prior = _symmetrize(F @ P @ np.swapaxes(F, -1, -2) + Q)
+    if F.ndim == 2 and P.ndim == 3:
+        # F P Fᵀ with a shared F as two GEMMs over the whole stack: P Fᵀ, then (F P) Fᵀ where
+        # F P = (P Fᵀ)ᵀ because P is symmetric.
+        FP = np.ascontiguousarray(np.swapaxes(_times_transposed(P, F), -1, -2))
+        FPF = _times_transposed(FP, F)
+    else:
+        FPF = F @ P @ np.swapaxes(F, -1, -2)
+    P_prior = _symmetrize(FPF + Q)
     return x_prior, P_prior
+
+
+def _times_transposed(A: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """A Mᵀ for a stack A (..., p, q) and a shared M (r, q), as one GEMM over the stack.
+
+    NumPy's stacked matmul handles a 4×4 product in ~80 ns; reshaping the stack into one
+    (.. · p, q) matrix lets BLAS do it in ~17 ns.
+    """
+    if M.ndim == 2 and A.ndim > 2:
+        A = np.ascontiguousarray(A)
+        return (A.reshape(-1, A.shape[-1]) @ M.T).reshape(*A.shape[:-1], M.shape[0])
+    return A @ np.swapaxes(M, -1, -2)
 
 
 @dataclass(frozen=True)
@@ -84,44 +112,152 @@ class UpdateResult:
 
 
 def _cholesky_checked(S: np.ndarray, what: str) -> np.ndarray:
-    try:
-        return np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        raise SingularCovarianceError(
-            f"{what} is not positive definite; check that R is positive definite and P has not collapsed"
-        ) from None
+    """Lower Cholesky factor of every matrix in ``S`` (..., m, m).
+
+    Small matrices (m <= 4) are factored with elementwise NumPy over the stack:
+    ``np.linalg.cholesky`` calls LAPACK once per matrix, which costs about a
+    microsecond each for a million 2x2 innovation covariances.
+    """
+    m = S.shape[-1]
+    if m > 4:
+        try:
+            return np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise _not_positive_definite(what) from None
+    L = np.zeros_like(S)
+    for j in range(m):
+        # L_jj = sqrt(S_jj - sum_k<j L_jk^2)
+        d = S[..., j, j] - np.sum(L[..., j, :j] ** 2, axis=-1)
+        if not np.all(d > 0):
+            raise _not_positive_definite(what)
+        L[..., j, j] = np.sqrt(d)
+        for i in range(j + 1, m):
+            # L_ij = (S_ij - sum_k<j L_ik L_jk) / L_jj
+            L[..., i, j] = (S[..., i, j] - np.sum(L[..., i, :j] * L[..., j, :j], axis=-1)) / L[..., j, j]
+    return L
+
+
+def _not_positive_definite(what: str) -> SingularCovarianceError:
+    return SingularCovarianceError(
+        f"{what} is not positive definite; check that R is positive definite and P has not collapsed"
+    )
+
+
+def _solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Solve L W = B for lower-triangular L (..., m, m) and B (..., m, k) by forward substitution."""
+    m = L.shape[-1]
+    if m > 4:
+        return np.linalg.solve(L, B)
+    W = np.empty(np.broadcast_shapes(L.shape[:-2], B.shape[:-2]) + B.shape[-2:], dtype=np.result_type(L, B))
+    for i in range(m):
+        # w_i = (b_i - sum_k<i L_ik w_k) / L_ii
+        acc = B[..., i, :] - np.sum(L[..., i, :i, None] * W[..., :i, :], axis=-2)
+        W[..., i, :] = acc / L[..., i, i, None]
+    return W
+
+
+def _solve_upper_transposed(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Solve Lᵀ V = B for lower-triangular L (..., m, m) by back substitution."""
+    m = L.shape[-1]
+    if m > 4:
+        return np.linalg.solve(np.swapaxes(L, -1, -2), B)
+    V = np.empty(np.broadcast_shapes(L.shape[:-2], B.shape[:-2]) + B.shape[-2:], dtype=np.result_type(L, B))
+    for i in reversed(range(m)):
+        # v_i = (b_i - sum_k>i L_ki v_k) / L_ii
+        acc = B[..., i, :] - np.sum(L[..., i + 1 :, i, None] * V[..., i + 1 :, :], axis=-2)
+        V[..., i, :] = acc / L[..., i, i, None]
+    return V
+
+
+def _mat_vec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A v over the last axes; A (..., p, q), v (..., q)."""
+    return np.matmul(A, v[..., None])[..., 0]
 
 
 def _gain_and_posterior(
-    x: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    x: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    joseph: bool = True,
+    measured_rows: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Dense update of filters that measured every component of ``z``.
 
-    ``P`` and ``R`` may be shared ((n, n), (m, m)) or stacked ((k, n, n), (k, m, m));
-    the outputs broadcast accordingly.
+    ``P``, ``H`` and ``R`` may be shared ((n, n), (m, n), (m, m)) or stacked
+    ((k, n, n), (k, m, n), (k, m, m)); the outputs broadcast accordingly.
+    ``measured_rows`` (k,) bool, if given, marks the filters that really measured:
+    the others get a zero gain, so their posterior is exactly their prior, and
+    NaN innovation statistics (their rows of ``z`` may hold anything finite).
     """
-    HP = H @ P
-    S = _symmetrize(HP @ H.T + R)
-    L = _cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
-    # K = P Hᵀ S⁻¹, computed as (S⁻¹ H P)ᵀ because S and P are symmetric.
-    K = np.swapaxes(np.linalg.solve(S, HP), -1, -2)
-    y = z - x @ H.T
-    x_post = x + np.einsum("...ij,...j->...i", K, y)
-    # Joseph form: P = (I - KH) P (I - KH)ᵀ + K R Kᵀ, symmetric PSD even when K is not optimal.
-    A = np.eye(P.shape[-1], dtype=P.dtype) - K @ H
-    P_post = _symmetrize(A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2))
-    # yᵀ S⁻¹ y through the Cholesky factor: |L⁻¹ y|².
-    if L.ndim == 2:
-        w = np.linalg.solve(L, y.T).T
+    stacked_P = P.ndim == 3
+    if H.ndim == 2 and stacked_P:
+        PHt = _times_transposed(P, H)  # P Hᵀ (k, n, m)
+        HP = np.ascontiguousarray(np.swapaxes(PHt, -1, -2))  # H P = (P Hᵀ)ᵀ, P symmetric
+        HPHt = _times_transposed(HP, H)
     else:
-        w = np.linalg.solve(L, y[..., None])[..., 0]
+        HP = H @ P
+        HPHt = HP @ np.swapaxes(H, -1, -2)
+    S = _symmetrize(HPHt + R)
+    L = _cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
+    # K = P Hᵀ S⁻¹ = (S⁻¹ H P)ᵀ with S⁻¹ = L⁻ᵀ L⁻¹ (S and P are symmetric).
+    Kt = _solve_upper_transposed(L, _solve_lower(L, HP))
+    if measured_rows is not None:
+        Kt = Kt * measured_rows[:, None, None]
+    K = np.swapaxes(Kt, -1, -2)
+    y = z - (x @ H.T if H.ndim == 2 else _mat_vec(H, x))
+    # x = x⁻ + K y, written as a sum over the m components (cheaper than a stack of tiny matmuls)
+    x_post = x + np.sum(K * y[..., None, :], axis=-1)
+    if H.ndim == 2 and Kt.ndim == 3:
+        KH = _times_transposed(np.ascontiguousarray(K), H.T)
+    else:
+        KH = K @ H
+    A = np.eye(P.shape[-1], dtype=P.dtype) - KH
+    if joseph:
+        # Joseph form: P = (I - KH) P (I - KH)ᵀ + K R Kᵀ, symmetric PSD even when K is not optimal.
+        KR = _times_transposed(np.ascontiguousarray(K), R) if R.ndim == 2 else K @ R
+        P_post = _symmetrize(A @ P @ np.swapaxes(A, -1, -2) + KR @ Kt)
+    else:
+        # Simple form: P = (I - KH) P, exact only for the optimal gain.
+        P_post = _symmetrize(A @ P)
+    # yᵀ S⁻¹ y through the Cholesky factor: |L⁻¹ y|².
+    w = _solve_lower(L, y[..., None])[..., 0]
     nis = np.sum(w * w, axis=-1)
     log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-    log_likelihood = -0.5 * (nis + log_det + H.shape[0] * _LOG_2PI)
-    return x_post, P_post, y, S, K, nis, log_likelihood  # type: ignore[return-value]
+    log_likelihood = -0.5 * (nis + log_det + H.shape[-2] * _LOG_2PI)
+    if measured_rows is not None:
+        y = np.where(measured_rows[:, None], y, np.nan)
+        nis = np.where(measured_rows, nis, np.nan)
+        log_likelihood = np.where(measured_rows, log_likelihood, np.nan)
+    return x_post, P_post, y, S, K, nis, log_likelihood
 
 
-def kalman_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> UpdateResult:
+def _measurement_patterns(measured: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Group the rows of a (N, m) mask by pattern: [(rows, measured columns), ...], empty rows left out.
+
+    Patterns are encoded as integers (bit j = component j measured) so that the
+    grouping is a bincount, not a row-wise ``np.unique``.
+    """
+    N, m = measured.shape
+    if m <= 62:
+        code = measured.astype(np.int64) @ (np.int64(1) << np.arange(m, dtype=np.int64))
+        if np.all(code == code[0]):  # one pattern for everybody: no fancy indexing
+            groups = [(np.arange(N), code[0])]
+        else:
+            order = np.argsort(code, kind="stable")
+            sorted_code = code[order]
+            cuts = np.flatnonzero(np.diff(sorted_code)) + 1
+            groups = [(rows, sorted_code[rows_start]) for rows, rows_start in
+                      zip(np.split(order, cuts), np.concatenate([[0], cuts]))]
+        return [(rows, np.flatnonzero((int(c) >> np.arange(m)) & 1)) for rows, c in groups if c != 0]
+    patterns, group = np.unique(measured, axis=0, return_inverse=True)
+    return [(np.flatnonzero(group.ravel() == p), np.flatnonzero(pat)) for p, pat in enumerate(patterns) if pat.any()]
+
+
+def kalman_update(
+    x: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray, *, joseph: bool = True
+) -> UpdateResult:
     """Condition N filters on their measurements; NaN components are not measured.
 
     Parameters
@@ -129,57 +265,131 @@ def kalman_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R:
     x : (N, n) prior states.
     P : (n, n) shared prior covariance or (N, n, n).
     z : (N, m) measurements; a whole row of NaN means "predict only", a row with
-        some NaN components updates with the measured components alone.
-    H : (m, n) measurement matrix.
+        some NaN components updates with the measured components alone (exactly
+        the update with the rows of H and the rows/columns of R of the measured
+        components).
+    H : (m, n) measurement matrix, or (N, m, n) one per filter.
     R : (m, m) shared or (N, m, m) per-filter measurement noise covariance.
+    joseph : use the Joseph form of the covariance update (default); False uses
+        the cheaper P = (I - K H) P.
 
     Returns
     -------
     UpdateResult
-        The posterior stays a single shared ``(n, n)`` covariance when P and R are
-        shared and every filter measured every component (one 4×4 update instead
-        of N).
+        The posterior stays a single shared ``(n, n)`` covariance when P, H and R
+        are shared and every filter measured every component (one n×n update
+        instead of N).
     """
     N, n = x.shape
-    m = H.shape[0]
+    m = H.shape[-2]
     measured = ~np.isnan(z)
     full = measured.all(axis=1)
-    shared = P.ndim == 2 and R.ndim == 2
+    shared = P.ndim == 2 and R.ndim == 2 and H.ndim == 2
 
     if shared and full.all():
-        x_post, P_post, y, S, K, nis, ll = _gain_and_posterior(x, P, z, H, R)
+        x_post, P_post, y, S, K, nis, ll = _gain_and_posterior(x, P, z, H, R, joseph)
         return UpdateResult(x_post, P_post, y, S, K, nis, ll, measured)
 
     # From here on every filter gets its own covariance.
     P_each = np.broadcast_to(P, (N, n, n))
     R_each = np.broadcast_to(R, (N, m, m))
+    H_each = np.broadcast_to(H, (N, m, n))
+    rows_complete_or_empty = bool((measured == full[:, None]).all())
+    if rows_complete_or_empty and P.ndim == 3:
+        # Rows are either complete or empty: one pass over all filters with a zero gain for
+        # the empty rows (no gather/scatter by pattern).
+        z_filled = np.where(measured, z, 0.0) if not full.all() else z
+        x_post, P_post, y, S, K, nis, ll = _gain_and_posterior(
+            x, P, z_filled, H, R, joseph, None if full.all() else full)
+        return UpdateResult(x_post, P_post, y, np.broadcast_to(S, (N, m, m)), K, nis, ll, measured)
+    S = _symmetrize(H_each @ P_each @ np.swapaxes(H_each, -1, -2) + R_each)
+    groups = _measurement_patterns(measured)
+
     x_post = x.copy()
     P_post = np.array(P_each, copy=True)
     y = np.full((N, m), np.nan, dtype=x.dtype)
     K = np.zeros((N, n, m), dtype=x.dtype)
     nis = np.full(N, np.nan, dtype=x.dtype)
     ll = np.full(N, np.nan, dtype=x.dtype)
-    S = _symmetrize(H @ P_each @ H.T + R_each)
-
-    any_measured = measured.any(axis=1)
-    if any_measured.any():
-        patterns, group = np.unique(measured[any_measured], axis=0, return_inverse=True)
-        rows_measured = np.flatnonzero(any_measured)
-        for p, pattern in enumerate(patterns):
-            rows = rows_measured[group.ravel() == p]
-            cols = np.flatnonzero(pattern)
-            H_sub = H[cols]
-            R_sub = R_each[rows][:, cols[:, None], cols]
-            xs, Ps, ys, _, Ks, nis_s, ll_s = _gain_and_posterior(
-                x[rows], P_each[rows], z[rows][:, cols], H_sub, R_sub
-            )
-            x_post[rows] = xs
-            P_post[rows] = Ps
-            y[rows[:, None], cols] = ys
-            K[rows[:, None], :, cols] = np.swapaxes(Ks, 1, 2)
-            nis[rows] = nis_s
-            ll[rows] = ll_s
+    for rows, cols in groups:
+        H_sub = H[cols] if H.ndim == 2 else H_each[rows][:, cols]
+        R_sub = R[np.ix_(cols, cols)] if R.ndim == 2 else R_each[rows][:, cols[:, None], cols]
+        P_sub = P if P.ndim == 2 else P_each[rows]
+        xs, Ps, ys, _, Ks, nis_s, ll_s = _gain_and_posterior(x[rows], P_sub, z[rows][:, cols], H_sub, R_sub, joseph)
+        x_post[rows] = xs
+        P_post[rows] = Ps
+        y[rows[:, None], cols] = ys
+        K[rows[:, None], :, cols] = np.swapaxes(np.broadcast_to(Ks, (rows.size, n, cols.size)), 1, 2)
+        nis[rows] = nis_s
+        ll[rows] = ll_s
     return UpdateResult(x_post, P_post, y, S, K, nis, ll, measured)
+
+
+@dataclass(frozen=True)
+class InnovationStatistics:
+    """Statistics of candidate measurements under the predicted (prior) state, for N filters.
+
+    Attributes
+    ----------
+    y : (N, K, m) innovations z - H x⁻ (NaN where the candidate has NaN).
+    S : (N, m, m) innovation covariances H P⁻ Hᵀ + R.
+    nis : (N, K) squared Mahalanobis distances yᵀ S⁻¹ y (the gating distance;
+        chi-square with m degrees of freedom for a correct model).
+    log_likelihood : (N, K) log N(z; H x⁻, S).
+    """
+
+    y: np.ndarray
+    S: np.ndarray
+    nis: np.ndarray
+    log_likelihood: np.ndarray
+
+
+def innovation_statistics(
+    x_prior: np.ndarray, P_prior: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray
+) -> InnovationStatistics:
+    """Innovation, its covariance, squared Mahalanobis distance and log-likelihood from the prior.
+
+    Nothing is updated: use it to gate K candidate measurements per filter before
+    choosing one (FilterPy's ``mahalanobis`` uses the posterior, which is not the
+    gating distance).
+
+    Parameters
+    ----------
+    x_prior : (N, n) predicted states.
+    P_prior : (n, n) shared or (N, n, n) predicted covariances.
+    z : (N, K, m) K candidate measurements per filter, or (N, m) one each.
+    H : (m, n) or (N, m, n) measurement matrix.
+    R : (m, m) or (N, m, m) measurement noise covariance.
+
+    Returns
+    -------
+    InnovationStatistics
+        With ``y`` (N, K, m) and ``nis``/``log_likelihood`` (N, K); the K axis is
+        absent when ``z`` was (N, m).  NaN where a candidate holds NaN.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> stats = innovation_statistics(np.zeros((1, 2)), np.eye(2), np.array([[[3.0, 0.0], [0.0, 1.0]]]),
+    ...                               np.eye(2), np.eye(2))
+    >>> stats.nis          # S = 2 I: distances 9/2 and 1/2
+    array([[4.5, 0.5]])
+    """
+    one = z.ndim == 2
+    Z = z[:, None, :] if one else z
+    Ht = np.swapaxes(H, -1, -2)
+    S = _symmetrize(H @ P_prior @ Ht + R)
+    L = _cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
+    y = Z - _mat_vec(H, x_prior)[:, None, :]
+    # |L⁻¹ y|² for all K candidates at once: solve with the K candidates as columns.
+    w = _solve_lower(L, np.swapaxes(y, -1, -2))
+    nis = np.sum(w * w, axis=-2)
+    log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+    ll = -0.5 * (nis + np.asarray(log_det)[..., None] + H.shape[-2] * _LOG_2PI)
+    S_out = np.broadcast_to(S, (x_prior.shape[0], *S.shape[-2:]))
+    if one:
+        return InnovationStatistics(y[:, 0], S_out, nis[:, 0], ll[:, 0])
+    return InnovationStatistics(y, S_out, nis, ll)
 
 
 class KalmanFilter:
@@ -189,18 +399,36 @@ class KalmanFilter:
     ----------
     x : (N, n) initial states, or (n,) for a single filter.
     P : (n, n) initial covariance shared by all filters, or (N, n, n).
-    F : (n, n) state transition.
-    H : (m, n) measurement matrix.
-    Q : (n, n) process noise covariance.
+    F : (n, n) state transition, or (N, n, n) one per filter.
+    H : (m, n) measurement matrix, or (N, m, n) one per filter.
+    Q : (n, n) process noise covariance, or (N, n, n).
     R : (m, m) measurement noise covariance, or (N, m, m) one per filter.
+    dtype : ``np.float64`` (default) or ``np.float32`` (half the memory; on the
+        constant-velocity model at pixel scale the states stay within 3e-4 px of
+        float64 over 100 steps, tested < 2e-3 px, see ``docs/kalman.md``).
+    joseph : Joseph-form covariance update (default, keeps P symmetric PSD);
+        False uses P = (I - K H) P, which is cheaper.
 
     Attributes use FilterPy's names: ``x``, ``P`` (posterior after ``update``, prior
     after ``predict``), ``x_prior``, ``P_prior``, ``y`` (innovation), ``S``
     (innovation covariance), ``K`` (gain), plus ``nis`` and ``log_likelihood`` of
-    the last measurement computed from the prior.  The covariance is kept as one
-    shared matrix for as long as every filter has the same history (same P0, all
-    measured every step), so 100 000 tracks cost one 4×4 update, not 100 000;
-    ``P`` still shows shape (N, n, n) (a read-only broadcast view).
+    the last measurement computed from the prior.  No history is kept: use
+    :meth:`run` for a batch with history, :func:`~kalmansfm.estimation.smoothing.smooth`
+    to smooth it.
+
+    The filter picks the cheapest exact arithmetic for the model, with the same
+    results:
+
+    * the covariance is kept as one shared matrix for as long as every filter has
+      the same history (same P0, all measured every step), so 100 000 tracks cost
+      one n×n update, not 100 000; ``P`` still shows shape (N, n, n) (a read-only
+      broadcast view);
+    * when F is the constant-velocity transition and Q, R, P do not couple x with
+      y (the model of :func:`~kalmansfm.models.constant_velocity_2d`), the filter
+      runs as two 2-state filters with a scalar measurement, storing three
+      numbers per covariance block (one block for x and y while their histories
+      agree) and updating them elementwise; ``P`` is then assembled as
+      (N, 4, 4) on access (read-only; assign ``kf.P = ...`` to change it).
 
     Examples
     --------
@@ -216,114 +444,236 @@ class KalmanFilter:
     True
     >>> round(float(kf.P[0, 0, 0]), 6)
     3.889655
+    >>> kf.predict()
+    >>> kf.gating_distance(np.array([[[1.0, 2.0], [9.0, 9.0]]] * 3)).shape   # 2 candidates per filter
+    (3, 2)
     """
 
-    def __init__(self, x: object, P: object, F: object, H: object, Q: object, R: object) -> None:
-        x_arr = as_float_array("x", x)
+    def __init__(
+        self,
+        x: object,
+        P: object,
+        F: object,
+        H: object,
+        Q: object,
+        R: object,
+        *,
+        dtype: type | np.dtype = np.float64,
+        joseph: bool = True,
+    ) -> None:
+        try:
+            self.dtype = np.dtype(dtype)
+        except TypeError:
+            raise InvalidInputError(f"dtype must be float64 or float32; got {dtype!r}") from None
+        if self.dtype not in (np.dtype(np.float64), np.dtype(np.float32)):
+            raise InvalidInputError(f"dtype must be float64 or float32; got {self.dtype}")
+        self.joseph = bool(joseph)
+        x_arr = self._array("x", x)
         if x_arr.ndim not in (1, 2):
             raise InvalidInputError(f"x must have shape (N, n) or (n,); got {x_arr.shape}")
         self._single = x_arr.ndim == 1
         x_arr = np.atleast_2d(x_arr).copy()
         check_finite("x", x_arr)
-        N, n = x_arr.shape
-        self.F = self._model_matrix("F", F, (n, n), "(state transition)")
-        self.Q = self._model_matrix("Q", Q, (n, n), "(process noise covariance)")
+        self._N, self._n = x_arr.shape
+        self.F = self._transition("F", F)
+        self.Q = self._transition("Q", Q)
         check_covariance("Q", self.Q, allow_singular=True)
-        H_arr = as_float_array("H", H)
-        if H_arr.ndim != 2 or H_arr.shape[1] != n:
-            raise InvalidInputError(f"H must have shape (m, {n}) (measurement matrix); got {H_arr.shape}")
-        check_finite("H", H_arr)
-        self.H = H_arr
-        self.R = self._measurement_noise(R, N)
-        P_arr = as_float_array("P", P)
-        if P_arr.shape == (n, n):
-            check_covariance("P", P_arr)
-        else:
-            check_shape("P", P_arr, (N, n, n), "(one covariance per filter) or (n, n) shared")
-            check_covariance("P", P_arr)
-        self._x = x_arr
-        self._P = P_arr.copy()
-        self._x_prior = self._x.copy()
-        self._P_prior = self._P.copy()
-        self._last: UpdateResult | None = None
+        self.H = self._measurement_matrix(H)
+        self.R = self._measurement_noise(R)
+        P_arr = self._covariance(P)
+        self._dense: tuple[np.ndarray, np.ndarray] | None = None  # (x, P) in the general form
+        self._dense_prior: tuple[np.ndarray, np.ndarray] | None = None
+        self._fast: tuple[np.ndarray, np.ndarray] | None = None  # (X, C) in the decoupled form
+        self._fast_prior: tuple[np.ndarray, np.ndarray] | None = None
+        self._dense_cache: dict[str, np.ndarray] = {}
+        self._last: object | None = None
+        self._last_F = self.F
+        self._set_state(x_arr, P_arr, initial=True)
 
     # -- construction helpers -------------------------------------------------
-    @staticmethod
-    def _model_matrix(name: str, value: object, shape: tuple[int, int], meaning: str) -> np.ndarray:
-        arr = as_float_array(name, value)
-        check_shape(name, arr, shape, meaning)
+    def _array(self, name: str, value: object) -> np.ndarray:
+        return as_float_array(name, value, dtype=self.dtype)
+
+    def _transition(self, name: str, value: object) -> np.ndarray:
+        """F or Q: (n, n) or (N, n, n)."""
+        arr = self._array(name, value)
+        n = self.dim_x
+        meaning = "(state transition)" if name == "F" else "(process noise covariance)"
+        if arr.ndim == 3:
+            check_shape(name, arr, (self.n_filters, n, n), f"{meaning}, one per filter, or ({n}, {n}) shared")
+        else:
+            check_shape(name, arr, (n, n), f"{meaning}, or ({self.n_filters}, {n}, {n}) one per filter")
         check_finite(name, arr)
         return arr
 
-    def _measurement_noise(self, R: object, N: int) -> np.ndarray:
-        m = self.H.shape[0]
-        arr = as_float_array("R", R)
+    def _measurement_matrix(self, H: object) -> np.ndarray:
+        arr = self._array("H", H)
+        n = self.dim_x
+        ok = (arr.ndim == 2 and arr.shape[1] == n) or (arr.ndim == 3 and arr.shape[0] == self.n_filters
+                                                       and arr.shape[2] == n)
+        if not ok:
+            raise InvalidInputError(f"H must have shape (m, {n}) or ({self.n_filters}, m, {n}) "
+                                    f"(measurement matrix); got {arr.shape}")
+        check_finite("H", arr)
+        return arr
+
+    def _measurement_noise(self, R: object) -> np.ndarray:
+        m = self.H.shape[-2]
+        arr = self._array("R", R)
         if arr.shape != (m, m):
-            check_shape("R", arr, (N, m, m), f"(one per filter) or ({m}, {m}) shared")
+            check_shape("R", arr, (self.n_filters, m, m), f"(one per filter) or ({m}, {m}) shared")
+        diagonal = np.diagonal(arr, axis1=-2, axis2=-1)
+        if arr.ndim == 3 and np.count_nonzero(arr) == np.count_nonzero(diagonal):
+            # Per-filter diagonal R (e.g. noise from the match quality): positive definite iff the
+            # diagonal is, which avoids one eigen-decomposition per filter.
+            check_finite("R", arr)
+            if not np.all(diagonal > 0):
+                bad = np.argwhere(~(diagonal > 0))[0]
+                raise InvalidInputError(f"R must be positive definite (matrix ({bad[0]},)); "
+                                        f"diagonal entry {bad[1]} is {diagonal[tuple(bad)]}")
+            return arr
         check_covariance("R", arr)
         return arr
+
+    def _covariance(self, P: object) -> np.ndarray:
+        arr = self._array("P", P)
+        n = self.dim_x
+        if arr.shape != (n, n):
+            if self._single and arr.shape == (1, n, n):
+                arr = arr[0]
+            else:
+                check_shape("P", arr, (self.n_filters, n, n), "(one covariance per filter) or (n, n) shared")
+        check_covariance("P", arr)
+        return arr
+
+    # -- the two internal forms ------------------------------------------------
+    @staticmethod
+    def _decoupled_motion(F: np.ndarray, Q: np.ndarray) -> tuple[float, np.ndarray] | None:
+        """(dt, q (2, 3)) when F is the constant-velocity transition and Q does not couple x and y."""
+        if F.ndim != 2 or Q.ndim != 2:
+            return None
+        dt = _decoupled.cv_transition_dt(F)
+        q = None if dt is None else _decoupled.axis_blocks(Q)
+        return None if q is None else (dt, q)
+
+    @staticmethod
+    def _decoupled_measurement(H: np.ndarray, R: np.ndarray) -> np.ndarray | None:
+        """r (2,) or (2, N) when H measures the position and R is diagonal, else None."""
+        if H.ndim != 2 or not _decoupled.is_position_measurement(H):
+            return None
+        r = _decoupled.diagonal_noise(R)
+        return None if r is None else (r if r.ndim == 1 else np.ascontiguousarray(r.T))
+
+    def _set_state(self, x: np.ndarray, P: np.ndarray, *, initial: bool = False) -> None:
+        """Store (x, P) in the decoupled form when the model allows it (and we are in it), else densely."""
+        self._dense_cache = {}
+        fits = (self._decoupled_motion(self.F, self.Q) is not None
+                and self._decoupled_measurement(self.H, self.R) is not None)
+        blocks = _decoupled.axis_blocks(P) if fits and (initial or self._fast is not None) else None
+        if blocks is not None:
+            self._fast = (np.ascontiguousarray(x.T), _decoupled.compact_covariance(blocks))
+            if initial:
+                self._fast_prior = self._fast
+        else:
+            self._to_dense()
+            self._dense = (x, P.copy())
+            if initial:
+                self._dense_prior = self._dense
+
+    def _to_dense(self) -> None:
+        """Leave the decoupled form for good (a step that couples x and y, or a general H)."""
+        if self._fast is None:
+            return
+        self._dense = self._expand(self._fast)
+        self._dense_prior = self._expand(self._fast_prior) if self._fast_prior is not None else self._dense
+        self._fast = self._fast_prior = None
+        self._dense_cache = {}
+
+    def _expand(self, fast: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        X, C = fast
+        return np.ascontiguousarray(X.T), _decoupled.dense_covariance(C, self.n_filters)
 
     # -- public state ----------------------------------------------------------
     @property
     def n_filters(self) -> int:
         """Number of filters N."""
-        return self._x.shape[0]
+        return self._N
 
     @property
     def dim_x(self) -> int:
         """State dimension n."""
-        return self._x.shape[1]
+        return self._n
 
     @property
     def dim_z(self) -> int:
         """Measurement dimension m."""
-        return self.H.shape[0]
+        return self.H.shape[-2]
+
+    @property
+    def decoupled(self) -> bool:
+        """True while the filter runs in the decoupled constant-velocity form."""
+        return self._fast is not None
 
     @property
     def shared_covariance(self) -> bool:
         """True while all filters have one covariance (stored once)."""
-        return self._P.ndim == 2
+        if self._fast is not None:
+            return self._fast[1].ndim == 2
+        return self._dense[1].ndim == 2
 
     def _present(self, a: np.ndarray, per_filter_ndim: int) -> np.ndarray:
         if a.ndim < per_filter_ndim:  # shared: show it per filter without copying
             a = np.broadcast_to(a, (self.n_filters, *a.shape))
         return a[0] if self._single else a
 
+    def _dense_P(self, key: str, fast: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        C = fast[1]
+        cached = self._dense_cache.get(key)
+        if cached is None or cached[0] is not C:
+            P = _decoupled.dense_covariance(C, self.n_filters)
+            P.flags.writeable = False
+            self._dense_cache[key] = (C, P)
+            return P
+        return cached[1]
+
     @property
     def x(self) -> np.ndarray:
         """Current states, (N, n) (or (n,) for a single filter)."""
-        return self._x[0] if self._single else self._x
+        x = self._fast[0].T if self._fast is not None else self._dense[0]
+        return x[0] if self._single else x
 
     @x.setter
     def x(self, value: object) -> None:
-        arr = np.atleast_2d(as_float_array("x", value))
-        check_shape("x", arr, self._x.shape, "(one state per filter)")
-        self._x = arr.copy()
+        arr = np.atleast_2d(self._array("x", value))
+        check_shape("x", arr, (self.n_filters, self.dim_x), "(one state per filter)")
+        check_finite("x", arr)
+        if self._fast is not None:
+            self._fast = (np.ascontiguousarray(arr.T), self._fast[1])
+        else:
+            self._dense = (arr.copy(), self._dense[1])
 
     @property
     def P(self) -> np.ndarray:
-        """Current covariances, (N, n, n) (a read-only view when shared)."""
-        return self._present(self._P, 3)
+        """Current covariances, (N, n, n) (read-only when shared or assembled from the decoupled form)."""
+        P = self._dense_P("P", self._fast) if self._fast is not None else self._dense[1]
+        return self._present(P, 3)
 
     @P.setter
     def P(self, value: object) -> None:
-        arr = as_float_array("P", value)
-        n = self.dim_x
-        if arr.shape != (n, n):
-            arr = arr.reshape(1, n, n) if self._single and arr.shape == (n, n) else arr
-            check_shape("P", arr, (self.n_filters, n, n), "(one covariance per filter) or (n, n) shared")
-        check_covariance("P", arr)
-        self._P = arr.copy()
+        P = self._covariance(value)
+        self._set_state(np.ascontiguousarray(self.x if not self._single else self.x[None]), P)
 
     @property
     def x_prior(self) -> np.ndarray:
         """States after the last ``predict``."""
-        return self._x_prior[0] if self._single else self._x_prior
+        x = self._fast_prior[0].T if self._fast is not None else self._dense_prior[0]
+        return x[0] if self._single else x
 
     @property
     def P_prior(self) -> np.ndarray:
         """Covariances after the last ``predict``."""
-        return self._present(self._P_prior, 3)
+        P = self._dense_P("P_prior", self._fast_prior) if self._fast is not None else self._dense_prior[1]
+        return self._present(P, 3)
 
     def _from_last(self, field: str, per_filter_ndim: int) -> np.ndarray:
         if self._last is None:
@@ -370,16 +720,19 @@ class KalmanFilter:
         u : optional known input, (n,) or (N, n) when ``B`` is None (added to the
             state directly), else (k,) or (N, k).
         B : optional (n, k) input matrix.
-        F, Q : optional (n, n) matrices for this step only (time-varying model).
+        F, Q : optional matrices for this step only (time-varying model, e.g. a
+            variable frame interval): (n, n), or (N, n, n) one per filter.
         """
         n = self.dim_x
-        F_arr = self.F if F is None else self._model_matrix("F", F, (n, n), "(state transition)")
-        Q_arr = self.Q if Q is None else self._model_matrix("Q", Q, (n, n), "(process noise covariance)")
+        F_arr = self.F if F is None else self._transition("F", F)
+        Q_arr = self.Q if Q is None else self._transition("Q", Q)
+        if Q is not None:
+            check_covariance("Q", Q_arr, allow_singular=True)
         offset = None
         if u is not None:
-            u_arr = as_float_array("u", u)
+            u_arr = self._array("u", u)
             if B is not None:
-                B_arr = as_float_array("B", B)
+                B_arr = self._array("B", B)
                 if B_arr.ndim != 2 or B_arr.shape[0] != n:
                     raise InvalidInputError(f"B must have shape ({n}, k); got {B_arr.shape}")
                 u_arr = u_arr @ B_arr.T
@@ -387,10 +740,24 @@ class KalmanFilter:
                 raise InvalidInputError(f"u must have shape ({n},) or ({self.n_filters}, {n}); got {u_arr.shape}")
             check_finite("u", u_arr)
             offset = u_arr
-        self._x, self._P = kalman_predict(self._x, self._P, F_arr, Q_arr, offset)
-        self._x_prior, self._P_prior = self._x, self._P
+        self._last_F = F_arr
+        self._dense_cache = {}  # assembled (N, 4, 4) covariances of the previous step
+        if self._fast is not None:
+            parts = self._decoupled_motion(F_arr, Q_arr)
+            if parts is not None:
+                dt, q = parts
+                X, C = self._fast
+                if C.shape[0] == 1 and not np.array_equal(q[0], q[1]):
+                    C = np.concatenate([C, C])
+                qb = q[:1] if C.shape[0] == 1 else q
+                self._fast_prior = None  # release the old prior before the new one is allocated
+                self._fast = self._fast_prior = _decoupled.predict(X, C, dt, qb, None if offset is None else offset.T)
+                return
+            self._to_dense()
+        x, P = self._dense
+        self._dense = self._dense_prior = kalman_predict(x, P, F_arr, Q_arr, offset)
 
-    def update(self, z: object, R: object | None = None) -> None:
+    def update(self, z: object, R: object | None = None, H: object | None = None) -> None:
         """Condition every filter on its measurement.
 
         Parameters
@@ -398,13 +765,148 @@ class KalmanFilter:
         z : (N, m) measurements (or (m,) for a single filter).  A row of NaN means
             "no measurement for this filter this step"; some NaN components in a row
             update with the others only.
-        R : optional measurement noise for this step only, (m, m) or (N, m, m).
+        R : optional measurement noise for this step only, (m, m) or (N, m, m)
+            (e.g. per-measurement noise from the match quality).
+        H : optional measurement matrix for this step only, (m, n) or (N, m, n);
+            it must keep the measurement dimension m.
         """
-        z_arr = np.atleast_2d(as_float_array("z", z))
+        z_arr = np.atleast_2d(self._array("z", z))
         check_shape("z", z_arr, (self.n_filters, self.dim_z), "(one measurement row per filter, NaN = missing)")
-        if np.isinf(z_arr).any():
+        finite = np.isfinite(z_arr)  # one pass finds both missing components and infinities
+        all_finite = bool(finite.all())
+        if not all_finite and np.isinf(z_arr).any():
             raise InvalidInputError("z must not contain infinity (use NaN for a missing measurement)")
-        R_arr = self.R if R is None else self._measurement_noise(R, self.n_filters)
-        result = kalman_update(self._x, self._P, z_arr, self.H, R_arr)
-        self._x, self._P = result.x, result.P
+        H_arr = self.H
+        if H is not None:
+            H_arr = self._measurement_matrix(H)
+            if H_arr.shape[-2] != self.dim_z:
+                raise InvalidInputError(f"H must keep the measurement dimension {self.dim_z}; got {H_arr.shape}")
+        R_arr = self.R if R is None else self._measurement_noise(R)
+        self._dense_cache.pop("P", None)
+        if self._fast is not None:
+            r = self._decoupled_measurement(H_arr, R_arr)
+            if r is not None:
+                X, C = self._fast
+                missing = None if all_finite else ~finite
+                X_new, C_new, stats = _decoupled.update(X, C, z_arr, r, self.joseph, missing)
+                self._fast_prior = (X, stats._C_prior)
+                self._fast = (X_new, C_new)
+                self._last = stats
+                return
+            self._to_dense()
+        x, P = self._dense
+        result = kalman_update(x, P, z_arr, H_arr, R_arr, joseph=self.joseph)
+        self._dense = (result.x, result.P)
         self._last = result
+
+    # -- statistics from the prior, batch runs ---------------------------------------
+    def innovation_statistics(
+        self, z: object, R: object | None = None, H: object | None = None
+    ) -> InnovationStatistics:
+        """Innovation, S, squared Mahalanobis distance and log-likelihood of candidates under the prior.
+
+        Uses the state after the last ``predict`` (``x_prior``, ``P_prior``) and
+        changes nothing.  ``z`` is (N, K, m) (K candidates per filter) or (N, m).
+        """
+        z_arr = self._array("z", z)
+        if z_arr.ndim not in (2, 3) or z_arr.shape[0] != self.n_filters or z_arr.shape[-1] != self.dim_z:
+            raise InvalidInputError(f"z must have shape ({self.n_filters}, K, {self.dim_z}) or "
+                                    f"({self.n_filters}, {self.dim_z}); got {z_arr.shape}")
+        H_arr = self.H if H is None else self._measurement_matrix(H)
+        R_arr = self.R if R is None else self._measurement_noise(R)
+        x_prior = self.x_prior if not self._single else self.x_prior[None]
+        P_prior = self.P_prior if not self._single else self.P_prior[None]
+        if self._fast is None and self._dense_prior[1].ndim == 2:
+            P_prior = self._dense_prior[1]
+        return innovation_statistics(x_prior, P_prior, z_arr, H_arr, R_arr)
+
+    def gating_distance(self, candidates: object, R: object | None = None) -> np.ndarray:
+        """Squared Mahalanobis distance of candidate measurements from the prediction, (N, K).
+
+        ``candidates`` (N, K, m); the distance is yᵀ S⁻¹ y with y = z - H x⁻ and
+        S = H P⁻ Hᵀ + R from the last ``predict`` (chi-square with m degrees of
+        freedom under the model, e.g. accept d² < 9.21 for 99 % with m = 2).
+        NaN where a candidate holds NaN.
+        """
+        c = self._array("candidates", candidates)
+        if c.ndim != 3:
+            raise InvalidInputError(f"candidates must have shape ({self.n_filters}, K, {self.dim_z}); got {c.shape}")
+        return self.innovation_statistics(c, R=R).nis
+
+    def run(
+        self,
+        zs: object,
+        *,
+        F: object | None = None,
+        Q: object | None = None,
+        H: object | None = None,
+        R: object | None = None,
+    ) -> FilterRun:
+        """Run T predict + update steps and return their history (the filter advances too).
+
+        Parameters
+        ----------
+        zs : (T, N, m) measurements, NaN for missing (rows or components).
+        F, Q : optional per-step models, (T, n, n) or (T, N, n, n); default the filter's.
+        H : optional per-step measurement matrices, (T, m, n) or (T, N, m, n).
+        R : optional per-step measurement noise, (T, m, m) or (T, N, m, m).
+
+        Returns
+        -------
+        FilterRun
+            Per-step priors and posteriors, the transitions used, NIS and
+            log-likelihood; give it to :func:`~kalmansfm.estimation.smoothing.smooth`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from kalmansfm.models import constant_velocity_2d
+        >>> m = constant_velocity_2d()
+        >>> kf = KalmanFilter(np.zeros((2, 4)), m.P0, m.F, m.H, m.Q, m.R)
+        >>> run = kf.run(np.zeros((10, 2, 2)))
+        >>> run.x.shape, run.P_prior.shape, run.nis.shape
+        ((10, 2, 4), (10, 2, 4, 4), (10, 2))
+        """
+        Z = self._array("zs", zs)
+        if self._single and Z.ndim == 2:
+            Z = Z[:, None, :]
+        check_shape("zs", Z, (None, self.n_filters, self.dim_z), "(steps, filters, m), NaN = missing")
+        T = Z.shape[0]
+        if T == 0:
+            raise InvalidInputError("zs must hold at least one step; got 0")
+        per_step = {}
+        for name, value in (("F", F), ("Q", Q), ("H", H), ("R", R)):
+            if value is not None:
+                arr = self._array(name, value)
+                if arr.ndim < 3 or arr.shape[0] != T:
+                    raise InvalidInputError(f"{name} in run() is one matrix per step: shape ({T}, ...); "
+                                            f"got {arr.shape}")
+                per_step[name] = arr
+        x0 = np.array(self.x if not self._single else self.x[None])
+        P0 = np.array(np.broadcast_to(self.P if not self._single else self.P[None],
+                                      (self.n_filters, self.dim_x, self.dim_x)))
+        hist = {k: [] for k in ("x_prior", "P_prior", "x", "P", "F", "nis", "log_likelihood")}
+        for t in range(T):
+            step = {k: v[t] for k, v in per_step.items()}
+            self.predict(F=step.get("F"), Q=step.get("Q"))
+            self.update(Z[t], R=step.get("R"), H=step.get("H"))
+            for k in ("x_prior", "P_prior", "x", "P", "nis", "log_likelihood"):
+                v = getattr(self, k)
+                hist[k].append(np.array(v if not self._single else v[None]))
+            hist["F"].append(self._last_F)
+        n, N = self.dim_x, self.n_filters
+        Fs = hist["F"]
+        F_hist = np.stack(Fs) if all(f.ndim == 2 for f in Fs) else np.stack([np.broadcast_to(f, (N, n, n))
+                                                                            for f in Fs])
+        P_hist = [np.broadcast_to(p, (N, n, n)) for p in hist["P"]]
+        return FilterRun(
+            x_initial=x0,
+            P_initial=P0,
+            x_prior=np.stack(hist["x_prior"]),
+            P_prior=np.stack(hist["P_prior"]),
+            x=np.stack(hist["x"]),
+            P=np.stack(P_hist),
+            F=F_hist,
+            nis=np.stack(hist["nis"]).reshape(T, N),
+            log_likelihood=np.stack(hist["log_likelihood"]).reshape(T, N),
+        )
