@@ -31,6 +31,7 @@ from .report.plot_structure import plot_structure
 from .report.plot_tracks import plot_covariance_trace, plot_tracks, write_tracks_gif
 from .scenes import Scene, render_scene
 from .structure import Reconstruction, align_similarity, factorize
+from .structure.cameras import camera_rotation_matrices, rotation_angle_deg
 from .tracking.tracker import track
 from .tracking.tracks import Tracks
 
@@ -157,18 +158,6 @@ def structure_summary(reconstruction: Reconstruction) -> dict[str, Any]:
     }
 
 
-def _rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cos = (np.trace(a @ b.T) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-
-
-def _camera_frame(rows: np.ndarray) -> np.ndarray:
-    i = rows[0] / np.linalg.norm(rows[0])
-    j = rows[1] - (rows[1] @ i) * i
-    j /= np.linalg.norm(j)
-    return np.stack([i, j, np.cross(i, j)])
-
-
 def compare_with_scene(
     tracks: Tracks, reconstruction: Reconstruction | None, scene: Scene, summary: dict[str, Any]
 ) -> None:
@@ -218,14 +207,11 @@ def compare_with_scene(
     radius = float(np.sqrt(np.mean(np.sum((gt_points - gt_points.mean(0)) ** 2, axis=1))))
     summary["factorization"]["shape_error_pct"] = 100.0 * alignment.rms / radius
     # target ≈ s A source  ⇒  recovered camera rows ≈ (true rows) A, up to scale.
-    angles = []
-    for f in range(candidate.motion.shape[0]):
-        if not np.isfinite(candidate.motion[f]).all():
-            angles.append(None)
-            continue
-        expected = _camera_frame(scene.rotations[f][:2] @ alignment.rotation)
-        angles.append(_rotation_angle_deg(_camera_frame(candidate.motion[f]), expected))
-    summary["factorization"]["rotation_error_deg"] = angles
+    finite = np.isfinite(candidate.motion).all(axis=(1, 2))
+    recovered = camera_rotation_matrices(np.where(finite[:, None, None], candidate.motion, 1.0))
+    expected = camera_rotation_matrices(scene.rotations[:, :2] @ alignment.rotation)
+    angles = rotation_angle_deg(recovered, expected)
+    summary["factorization"]["rotation_error_deg"] = [float(a) if ok else None for a, ok in zip(angles, finite)]
 
 
 def _encode_png(image: np.ndarray) -> bytes:

@@ -18,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
+from ..structure.cameras import camera_rotation_matrices as _rotations_from_rows  # noqa: E402
 from .run_folder import STATUS_LOST, STATUS_MEASURED, STATUS_PREDICTED, CameraMotion, TrackArrays  # noqa: E402
 
 __all__ = [
@@ -35,7 +36,6 @@ __all__ = [
     "track_error_per_frame",
     "track_error_figure",
     "rotation_error_figure",
-    "align_similarity",
 ]
 
 # Drawing works in 1/16 px so that sub-pixel positions are drawn where they are.
@@ -301,43 +301,6 @@ def singular_values_figure(singular_values: Sequence[float]) -> bytes:
     return _figure_png(fig)
 
 
-def align_similarity(
-    source: np.ndarray, target: np.ndarray, *, allow_reflection: bool = False
-) -> tuple[np.ndarray, float]:
-    """Similarity transform (scale, rotation, translation) of ``source`` that best fits ``target``.
-
-    Least squares (Umeyama): centre both sets, take the SVD of the cross
-    covariance, then the scale that matches the spreads.
-
-    Returns
-    -------
-    aligned : (P, 3) float, the transformed source points
-    rms : float, root mean square distance to ``target`` in target units
-
-    Examples
-    --------
-    >>> rng = np.random.default_rng(0)
-    >>> x = rng.normal(size=(6, 3))
-    >>> aligned, rms = align_similarity(2.0 * x + 1.0, x)
-    >>> bool(rms < 1e-12)
-    True
-    """
-    src = np.asarray(source, dtype=float)
-    dst = np.asarray(target, dtype=float)
-    src_mean, dst_mean = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - src_mean, dst - dst_mean
-    u, s, vt = np.linalg.svd(b.T @ a)
-    signs = np.ones(3)
-    if not allow_reflection and np.linalg.det(u @ vt) < 0:
-        signs[-1] = -1.0
-    rotation = u @ np.diag(signs) @ vt
-    # scale = trace(D S) / |a|^2 minimises |b - scale R a|^2
-    scale = float((s * signs).sum() / max((a**2).sum(), np.finfo(float).tiny))
-    aligned = scale * a @ rotation.T + dst_mean
-    rms = float(np.sqrt(((aligned - dst) ** 2).sum(axis=1).mean()))
-    return aligned, rms
-
-
 def shape_views_figure(
     points: np.ndarray,
     labels: Sequence[int],
@@ -397,18 +360,9 @@ def shape_views_figure(
     return _figure_png(fig)
 
 
-def _nearest_rotation(matrices: np.ndarray) -> np.ndarray:
-    u, _, vt = np.linalg.svd(matrices)
-    det = np.linalg.det(u @ vt)
-    u[..., :, -1] *= det[..., None]
-    return u @ vt
-
-
 def camera_rotation_matrices(motion: CameraMotion) -> np.ndarray:
-    """(F, 3, 3) world → camera rotations: rows i, j, k = i × j, normalised and snapped to a rotation."""
-    i_rows = motion.i_rows / np.linalg.norm(motion.i_rows, axis=1, keepdims=True)
-    j_rows = motion.j_rows / np.linalg.norm(motion.j_rows, axis=1, keepdims=True)
-    return _nearest_rotation(np.stack([i_rows, j_rows, np.cross(i_rows, j_rows)], axis=1))
+    """(F, 3, 3) world → camera rotations from the rows of ``motion.csv``."""
+    return _rotations_from_rows(np.stack([motion.i_rows, motion.j_rows], axis=1))
 
 
 def camera_rotations(motion: CameraMotion) -> tuple[np.ndarray, np.ndarray]:

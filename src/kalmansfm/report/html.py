@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from ..errors import InvalidInputError
 from ..io.atomic import output_directory
+from ..structure.alignment import align_similarity
 from . import figures
 from ._assets import CSS, ERROR_TRAP_JS, JS
 from .run_folder import RunFolder, load_run
@@ -414,11 +415,11 @@ def _matched_truth(run: RunFolder) -> tuple[np.ndarray, np.ndarray, np.ndarray] 
 
 
 def _best_alignment(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float, bool]:
-    aligned, rms = figures.align_similarity(source, target)
-    mirrored, rms_mirrored = figures.align_similarity(source, target, allow_reflection=True)
-    if rms_mirrored < 0.5 * rms:
-        return mirrored, rms_mirrored, True
-    return aligned, rms, False
+    proper = align_similarity(source, target)
+    mirrored = align_similarity(source, target, allow_reflection=True)
+    if mirrored.rms < 0.5 * proper.rms:
+        return mirrored.aligned, mirrored.rms, True
+    return proper.aligned, proper.rms, False
 
 
 def _section_shape(run: RunFolder) -> str | None:

@@ -9,7 +9,6 @@ from report_checks import assert_self_contained, decode_png_data_uri
 from kalmansfm import InvalidInputError
 from kalmansfm.report import build_report, load_run
 from kalmansfm.report.figures import (
-    align_similarity,
     camera_rotations,
     gate_ellipses,
     render_tracked_frames,
@@ -205,20 +204,6 @@ def test_drawn_gate_passes_through_its_semi_axes():
     assert drawn[int(round(40 + b)), 50] and drawn[int(round(40 - b)), 50]
     assert not drawn[40, 50 + 7] and not drawn[40, 50 + 13]  # inside and outside the ring, off the marker
     assert drawn[40, 50]  # the measured point itself
-
-
-def test_align_similarity_recovers_rotation_scale_and_translation():
-    rng = np.random.default_rng(3)
-    points = rng.normal(size=(10, 3))
-    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-    rotation = q * np.sign(np.linalg.det(q))
-    moved = 3.0 * points @ rotation.T + [1.0, -2.0, 5.0]
-    aligned, rms = align_similarity(moved, points)
-    assert rms < 1e-12
-    np.testing.assert_allclose(aligned, points, atol=1e-12)
-    mirrored = points * [1, 1, -1]
-    assert align_similarity(mirrored, points)[1] > 0.1
-    assert align_similarity(mirrored, points, allow_reflection=True)[1] < 1e-12
 
 
 def test_camera_rotations_recover_a_pure_pan():
