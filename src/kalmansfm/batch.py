@@ -202,8 +202,9 @@ def run_batch(
 
         cluster = None
         if scheduler is None:
+            # ":0": the diagnostics server takes any free port, so two batches can run side by side
             cluster = LocalCluster(
-                n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=logging.WARNING
+                n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=logging.WARNING
             )
         client = Client(scheduler if scheduler is not None else cluster)
         try:
