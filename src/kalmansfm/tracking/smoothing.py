@@ -41,7 +41,7 @@ from .tracks import MEASURED, PREDICTED, Tracks
 
 __all__ = ["smooth_tracks", "tracker_model"]
 
-# Tracks per chunk of the backward pass: bounds the temporary (frames, chunk, 4, 4) arrays.
+# (frames × tracks) per chunk of the backward pass: bounds the temporary (frames, chunk, 4, 4) arrays.
 _CHUNK_ELEMENTS = 1 << 20
 
 
@@ -67,7 +67,7 @@ def tracker_model(parameters: dict[str, Any]) -> LinearGaussianModel:
 
 
 def _chains(tracks: Tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per track: first and last frame of its filter chain, and whether it has one (>= 2 frames)."""
+    """Per track: first and last frame of its filter chain, and whether it has a step to smooth (>= 2 frames)."""
     alive = (tracks.status == MEASURED) | (tracks.status == PREDICTED)
     F = tracks.n_frames
     any_alive = alive.any(axis=0)
