@@ -22,16 +22,18 @@ import cv2
 import numpy as np
 
 from . import __version__
-from .errors import NotEnoughDataError
+from .errors import InvalidInputError, NotEnoughDataError
 from .io.atomic import OutputDirectory, output_directory
 from .io.ground_truth import frame_name, scene_files
 from .io.structure import motion_csv, structure_csv, structure_ply
-from .io.tracks import write_tracks_csv, write_tracks_npz
+from .io.track_table import TrackPositions, read_track_positions
+from .io.tracks import read_tracks_npz, write_tracks_csv, write_tracks_npz
 from .report.plot_structure import plot_structure
 from .report.plot_tracks import plot_covariance_trace, plot_tracks, write_tracks_gif
 from .scenes import Scene, render_scene
 from .structure import Reconstruction, align_similarity, factorize
 from .structure.cameras import camera_rotation_matrices, rotation_angle_deg
+from .tracking.smoothing import smooth_tracks
 from .tracking.tracker import track
 from .tracking.tracks import Tracks
 
@@ -44,6 +46,7 @@ __all__ = [
     "structure_summary",
     "compare_with_scene",
     "factorize_tracks",
+    "read_tracks_for_factorization",
     "describe",
 ]
 
@@ -108,6 +111,76 @@ def factorize_tracks(tracks: Tracks, *, weighted: bool = True) -> Reconstruction
             weights = np.where(measured[..., None], 1.0 / np.sqrt(variances), 0.0)
         weights = np.nan_to_num(weights, nan=0.0, posinf=0.0)
     return factorize(positions, weights=weights)
+
+
+def read_tracks_for_factorization(path: str | Path, *, smooth: bool | None = None) -> TrackPositions:
+    """The observations of a tracks file for :func:`~kalmansfm.factorize`, RTS-smoothed when possible.
+
+    Smoothing (:func:`~kalmansfm.tracking.smoothing.smooth_tracks`) needs the
+    tracker's states and full covariances, i.e. its ``tracks.npz``; a ``tracks.csv``
+    holds only x, y, vx, vy and the position standard deviations, which is not
+    enough to rebuild the filter's priors.  Only measured entries are observations,
+    as in :func:`~kalmansfm.io.track_table.read_track_positions`; with smoothing they
+    are the smoothed positions weighted by the smoothed standard deviations.
+
+    Parameters
+    ----------
+    path : ``tracks.npz``, ``tracks.csv`` or a ``frame,track_id,x,y`` CSV.
+    smooth : None (default) smooths a tracker's ``tracks.npz`` that is not smoothed
+        yet and reads anything else as it is (logging why); True requires smoothing
+        (or tracks already smoothed) and raises otherwise; False never smooths.
+
+    Returns
+    -------
+    TrackPositions
+        With ``smoothed`` False, True or the lag of tracks smoothed earlier.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from kalmansfm.io.tracks import write_tracks_npz
+    >>> from kalmansfm.scenes import render_scene
+    >>> scene = render_scene(n_frames=8)
+    >>> tracks = track(list(scene.frames), scene.positions[0, scene.visible[0]])
+    >>> path = write_tracks_npz(tracks, pathlib.Path(tempfile.mkdtemp()) / "tracks.npz")
+    >>> read_tracks_for_factorization(path).smoothed, read_tracks_for_factorization(path, smooth=False).smoothed
+    (True, False)
+    """
+    path = Path(path)
+    observed = read_track_positions(path)
+    if smooth is False:
+        return observed
+    reason = None
+    tracks = None
+    if path.suffix.lower() != ".npz":
+        reason = f"{path} is a CSV; smoothing needs the tracker's tracks.npz (states and covariances)"
+    else:
+        with np.load(path, allow_pickle=False) as data:
+            names = set(data.files)
+        if not {"states", "covariances"} <= names:
+            reason = f"{path} holds no tracker states and covariances"
+        else:
+            tracks = read_tracks_npz(path)
+    if tracks is not None and tracks.parameters.get("smoothed"):
+        return TrackPositions(observed.positions, observed.track_ids, observed.frames, observed.std,
+                              smoothed=tracks.parameters["smoothed"])
+    if tracks is not None:
+        try:
+            smoothed = smooth_tracks(tracks)
+        except InvalidInputError as exc:
+            if smooth:
+                raise
+            reason = f"{path} cannot be smoothed: {exc}"
+    if reason is not None:
+        if smooth:
+            raise InvalidInputError(f"cannot smooth the tracks: {reason}")
+        log.info("using the tracks as they are: %s", reason)
+        return observed
+    measured = smoothed.status == MEASURED
+    order = np.argsort(smoothed.track_ids, kind="stable")
+    positions = np.where(measured[..., None], smoothed.positions, np.nan)[:, order]
+    std = np.where(measured[..., None], smoothed.position_std, np.nan)[:, order]
+    return TrackPositions(positions, observed.track_ids, observed.frames, std, smoothed=True)
 
 
 def tracking_summary(tracks: Tracks) -> dict[str, Any]:
@@ -237,6 +310,7 @@ def run_pipeline(
     track_ids: np.ndarray | None = None,
     track_options: dict[str, Any] | None = None,
     weighted: bool = True,
+    smooth: bool = True,
     save_frames: bool = True,
     html: bool = True,
     progress: bool = False,
@@ -253,6 +327,9 @@ def run_pipeline(
     points, track_ids : frame-0 points to track in ``input`` (None: detect corners).
     track_options : keyword options of :func:`kalmansfm.track`.
     weighted : weight the factorization by the tracker's posterior standard deviations.
+    smooth : RTS-smooth the tracks (:func:`~kalmansfm.tracking.smoothing.smooth_tracks`)
+        before they are written, scored and factorized (see "Smoothing the tracker" in
+        docs/kalman.md for what it gains on the built-in scene).
     save_frames : copy the frames into ``frames/`` of the run folder (the report draws on them).
     html : build ``report.html``.
     progress : progress bars on stderr.
@@ -293,13 +370,18 @@ def run_pipeline(
     t0 = time.perf_counter()
     tracks = track(frames, points, track_ids=track_ids, progress=progress, **options)
     timings["tracking_s"] = time.perf_counter() - t0
+    if smooth:
+        t0 = time.perf_counter()
+        tracks = smooth_tracks(tracks)
+        timings["smoothing_s"] = time.perf_counter() - t0
 
     summary: dict[str, Any] = {
         "kalmansfm_version": __version__,
         "command": command,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "input": source,
-        "parameters": {**tracks.parameters, "weighted_factorization": weighted},
+        "parameters": {**tracks.parameters, "smoothed": tracks.parameters.get("smoothed", False),
+                       "weighted_factorization": weighted},
         "versions": {"kalmansfm": __version__, "python": platform.python_version(), "numpy": np.__version__},
         "status_codes": {"0": "no track", "1": "measured", "2": "predicted", "3": "lost"},
         "tracking": tracking_summary(tracks),

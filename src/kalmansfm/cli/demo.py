@@ -28,6 +28,12 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the built-in scene")
     p.add_argument("--frames", type=int, default=30, help="number of frames of the built-in scene")
+    p.add_argument(
+        "--smooth",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="RTS-smooth the tracks (each estimate given the whole sequence) before writing and factorizing them",
+    )
     p.add_argument("--open", action="store_true", help="open report.html in a browser when done")
     p.set_defaults(run=run)
 
@@ -35,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and print a short summary."""
     result = run_pipeline(
-        args.out, input=args.input, seed=args.seed, n_frames=args.frames, progress=not args.quiet
+        args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet
     )
     print(describe(result))
     if args.open and result.report is not None:

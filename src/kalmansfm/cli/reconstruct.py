@@ -12,7 +12,7 @@ import numpy as np
 from .. import __version__
 from ..io.atomic import output_directory
 from ..io.structure import motion_csv, structure_csv, structure_ply
-from ..io.track_table import read_track_positions
+from ..pipeline import read_tracks_for_factorization
 from ..report.plot_structure import plot_structure
 from ..structure.factorization import factorize
 
@@ -37,13 +37,20 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         action="store_true",
         help="ignore the tracker's standard deviations and weight every observation equally",
     )
+    p.add_argument(
+        "--smooth",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="factorize RTS-smoothed positions (needs the tracker's tracks.npz). Default: smooth a tracks.npz "
+        "that is not smoothed yet, read a CSV as it is",
+    )
     p.add_argument("--max-iterations", type=int, default=500, help="cap on the missing-data refinement iterations")
     p.add_argument("--no-plot", action="store_true", help="do not draw structure.png")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    tracks = read_track_positions(args.tracks)
+    tracks = read_tracks_for_factorization(args.tracks, smooth=args.smooth)
     weights = None if args.no_weights else tracks.weights
     log.info("read %d frames x %d tracks from %s", *tracks.positions.shape[:2], args.tracks)
     result = factorize(tracks.positions, weights=weights, max_iterations=args.max_iterations)
@@ -52,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
         "version": __version__,
         "tracks": str(args.tracks),
         "weighted": weights is not None,
+        "smoothed": tracks.smoothed,
         "frames": int(tracks.positions.shape[0]),
         "points": int(tracks.positions.shape[1]),
         "method": result.method,
@@ -72,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     shown = np.array2string(result.singular_values[:6], precision=4, separator=", ")
     print(f"frames: {summary['frames']}  tracks: {summary['points']}  method: {result.method}"
           + (f" ({result.iterations} iterations)" if result.method == "als" else "")
-          + ("  weighted by tracker std" if weights is not None else ""))
+          + ("  weighted by tracker std" if weights is not None else "")
+          + ("  smoothed" if tracks.smoothed is not False else ""))
     print(f"singular values: {shown}")
     print(f"rank-3 residual: {result.residual_rms:.4f} px RMS")
     for note in result.warnings:

@@ -16,6 +16,7 @@ from ..io.atomic import output_directory
 from ..io.frames import read_frames
 from ..io.tracks import check_points_inside, read_points_csv, write_tracks_csv, write_tracks_npz
 from ..report.plot_tracks import plot_covariance_trace, plot_tracks, write_tracks_gif
+from ..tracking.smoothing import smooth_tracks
 from ..tracking.tracker import track
 
 log = logging.getLogger("kalmansfm")
@@ -56,7 +57,8 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         help="track points through a folder of images, a glob or a video",
         description="Track points with one Kalman filter per point (constant velocity): predict, search the "
         "template inside the gate ellipse of the predicted covariance, update. Writes tracks.csv, tracks.npz, "
-        "covariance_trace.png, tracks.png, tracks.gif and summary.json to DIR.",
+        "covariance_trace.png, tracks.png, tracks.gif and summary.json to DIR. With --smooth the files hold "
+        "Rauch-Tung-Striebel smoothed estimates (each given the whole sequence) instead of the online ones.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("input", metavar="INPUT", help="folder of images (natural order), glob pattern or video file")
@@ -71,6 +73,10 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument("--window", type=_odd_window, default=11, metavar="N", help="template side in pixels (odd)")
     p.add_argument("--max-misses", type=_count, default=3, metavar="N", help="frames a track may coast before it is lost")
     p.add_argument("--redetect", action="store_true", help="add new corners in empty regions as tracks are lost")
+    p.add_argument("--smooth", action="store_true",
+                   help="write RTS-smoothed positions and covariances (fixed interval: each frame uses all frames)")
+    p.add_argument("--smooth-lag", type=_count, default=None, metavar="L",
+                   help="fixed-lag smoothing instead: frame t uses the frames up to t + L (implies --smooth)")
     p.set_defaults(run=run)
 
 
@@ -93,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
         redetect=args.redetect,
     )
     tracks = track(frames, points, track_ids=track_ids, progress=not args.quiet, **options)
+    if args.smooth or args.smooth_lag is not None:
+        tracks = smooth_tracks(tracks, lag=args.smooth_lag)
     last_frame = None
     for last_frame in frames:  # the last frame for the picture (frames are decoded lazily)
         pass
@@ -101,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         "input": str(args.input),
         "points": args.points,
         "parameters": tracks.parameters,
+        "smoothed": tracks.parameters.get("smoothed", False),
         "versions": {"kalmansfm": __version__, "python": platform.python_version(), "numpy": np.__version__},
         "metrics": {
             "frames": tracks.n_frames,
@@ -122,7 +131,9 @@ def run(args: argparse.Namespace) -> int:
     m = summary["metrics"]
     print(
         f"tracked {m['tracks']} points through {m['frames']} frames; {m['alive_in_last_frame']} alive at the end, "
-        f"{m['survival_of_first_frame_tracks']:.0%} of the first frame's; results in {args.out}",
+        f"{m['survival_of_first_frame_tracks']:.0%} of the first frame's; "
+        + ("smoothed; " if summary["smoothed"] is not False else "")
+        + f"results in {args.out}",
         file=sys.stdout,
     )
     return 0

@@ -48,12 +48,15 @@ class TrackPositions:
     frames : (F,) int — the frame number of each row, ascending.
     std : (F, P, 2) float or None — standard deviation of each observed coordinate
         (NaN where not observed), when the file has it.
+    smoothed : False, or True / the lag when the positions are RTS-smoothed tracker
+        estimates (:func:`kalmansfm.pipeline.read_tracks_for_factorization`).
     """
 
     positions: np.ndarray
     track_ids: np.ndarray
     frames: np.ndarray
     std: np.ndarray | None
+    smoothed: bool | int = False
 
     @property
     def weights(self) -> np.ndarray | None:

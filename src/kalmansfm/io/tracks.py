@@ -8,13 +8,16 @@ with ``status`` one of ``measured``, ``predicted`` (coasting: x, y are the
 prediction) and ``lost`` (the frame of the loss; the numbers are empty).
 ``tracks.npz`` holds ``positions (F,P,2)``, ``states (F,P,4)``,
 ``covariances (F,P,4,4)``, ``status (F,P)`` int8 (0 none, 1 measured,
-2 predicted, 3 lost) and ``track_ids (P,)``.
+2 predicted, 3 lost) and ``track_ids (P,)``, plus ``scores``, ``image_size`` and
+``parameters`` (the tracker's options as a JSON string, e.g. its noise levels and
+whether the tracks were smoothed).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import os
 from pathlib import Path
 
@@ -78,6 +81,8 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
     extra = {} if tracks.scores is None else {"scores": tracks.scores}
     if tracks.image_size is not None:
         extra["image_size"] = np.asarray(tracks.image_size, dtype=np.int64)
+    if tracks.parameters:
+        extra["parameters"] = np.array(json.dumps(tracks.parameters, default=str))
     with open(path, "wb") as handle:
         np.savez_compressed(
             handle,
@@ -103,6 +108,14 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     if missing:
         raise InvalidInputError(f"{path} lacks the arrays {sorted(missing)}")
     size = arrays.get("image_size")
+    parameters = {}
+    if "parameters" in arrays:
+        try:
+            parameters = json.loads(str(arrays["parameters"]))
+        except ValueError as exc:
+            raise InvalidInputError(f"{path}: the parameters array is not valid JSON ({exc})") from None
+        if not isinstance(parameters, dict):
+            raise InvalidInputError(f"{path}: the parameters array must hold a JSON object; got {type(parameters).__name__}")
     return Tracks(
         positions=arrays["positions"],
         states=arrays["states"],
@@ -111,6 +124,7 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
         track_ids=arrays["track_ids"].astype(np.int64),
         scores=arrays.get("scores"),
         image_size=None if size is None else (int(size[0]), int(size[1])),
+        parameters=parameters,
     )
 
 

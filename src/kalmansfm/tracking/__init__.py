@@ -2,6 +2,7 @@
 
 from .detect import detect_corners
 from .matching import MatchResult, gate_radius_for_probability, match_templates
+from .smoothing import smooth_tracks
 from .tracker import FrameEstimate, Tracker, track
 from .tracks import LOST, MEASURED, NO_TRACK, PREDICTED, STATUS_NAMES, Tracks
 
@@ -18,5 +19,6 @@ __all__ = [
     "detect_corners",
     "gate_radius_for_probability",
     "match_templates",
+    "smooth_tracks",
     "track",
 ]
