@@ -458,13 +458,12 @@ def _search_group(
     if score == "ssd":
         # SSD(u) = Σ I² - 2 Σ I T + Σ T²; the constant Σ T² is added to the best only
         # (it moves neither the argmin nor the quadratic fit's stationary point).
-        cost = scaled_correlation
-        cost += _gather_windows(frame.window_sum_sq, cand_top_left, side)
+        cost = _gather_windows(frame.window_sum_sq, cand_top_left, side) + scaled_correlation
     else:
         # NCC(u) = Σ I (T - T̄) / (‖T - T̄‖ √(Σ I² - (Σ I)² / n)); the cost is -NCC·‖T - T̄‖
         # (the positive per-track factor does not move the argmin or the fit either).
-        cost = scaled_correlation
-        cost *= _gather_windows(frame.ncc_scale, cand_top_left, side)
+        cost = _gather_windows(frame.ncc_scale, cand_top_left, side) * scaled_correlation
+    flat_cost = cost.reshape(n, -1)
 
     # Gate: dᵀ Σ⁻¹ d = a dx² + 2 b dx dy + c dy² ≤ c², with the dx² and dy² terms per
     # column and per row; a candidate whose window leaves the frame gets +inf there.
@@ -477,13 +476,25 @@ def _search_group(
     row_term = inverse[:, 1, 1, None] * dy * dy
     column_term[(cand_x < half_w) | (cand_x > width - 1 - half_w)] = np.inf
     row_term[(cand_y < half_w) | (cand_y > height - 1 - half_w)] = np.inf
-    mahalanobis_sq = (2.0 * inverse[:, 0, 1, None] * dy).astype(np.float32)[:, :, None] * dx.astype(np.float32)[:, None, :]
-    mahalanobis_sq += column_term.astype(np.float32)[:, None, :]
-    mahalanobis_sq += row_term.astype(np.float32)[:, :, None]
-    masked = np.where(mahalanobis_sq <= np.float32(gate_radius * gate_radius), cost, np.float32(np.inf)).reshape(n, -1)
-    best = np.argmin(masked, axis=1)
+    cross_coefficient = 2.0 * inverse[:, 0, 1]
+    radius_sq = gate_radius * gate_radius
+
+    # Usually the best candidate of the whole box already lies in the gate (and the
+    # image); then it is the best in the gate as well, and the full mask is not needed.
+    best = np.argmin(flat_cost, axis=1)
     k = np.arange(n)
-    ok = np.isfinite(masked[k, best])
+    by, bx = np.divmod(best, side)
+    best_mahalanobis_sq = column_term[k, bx] + row_term[k, by] + cross_coefficient * dx[k, bx] * dy[k, by]
+    outside = np.flatnonzero(~(best_mahalanobis_sq <= radius_sq))
+    ok = np.ones(n, dtype=bool)
+    if len(outside):
+        o = outside
+        mahalanobis_sq = (cross_coefficient[o, None] * dy[o]).astype(np.float32)[:, :, None] * dx[o].astype(np.float32)[:, None, :]
+        mahalanobis_sq += column_term[o].astype(np.float32)[:, None, :]
+        mahalanobis_sq += row_term[o].astype(np.float32)[:, :, None]
+        masked = np.where(mahalanobis_sq <= np.float32(radius_sq), cost[o], np.float32(np.inf)).reshape(len(o), -1)
+        best[o] = np.argmin(masked, axis=1)
+        ok[o] = np.isfinite(masked[np.arange(len(o)), best[o]])
     by, bx = np.divmod(best, side)
     # 3×3 neighbourhood of the best candidate (edges: repeat the centre so that axis is not refined).
     ny = np.clip(by[:, None] + np.array([-1, 0, 1]), 0, side - 1)
