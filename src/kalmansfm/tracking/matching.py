@@ -1,19 +1,20 @@
 """Gated template search: SSD or NCC of square templates inside Kalman gate ellipses.
 
 Everything here works on all tracks at once.  One frame is prepared once
-(:func:`prepare_frame`: a float copy, padded, plus box-filtered sums of the
-intensities and of their squares); the templates are then compared with every
-candidate position in a square box around each predicted position, by one
-batched FFT cross-correlation, and candidates outside the gate ellipse
+(:func:`prepare_frame`: a float32 copy padded by repeating its border, plus the
+box-filtered sums of its squares); the templates are then compared with every
+candidate position in the smallest square box that holds each gate ellipse
 
-    (p - p⁻)ᵀ (Σ⁻_pos)⁻¹ (p - p⁻) ≤ c²
+    (p - p⁻)ᵀ (Σ⁻_pos)⁻¹ (p - p⁻) ≤ c²,
 
-or too close to the image border for a full window are excluded.  The best
-candidate is refined to sub-pixel precision by a least-squares quadratic fit of
-its 3×3 score neighbourhood.
+by one batched FFT cross-correlation per box size, and candidates outside the
+ellipse or too close to the image border for a full window are excluded.  The
+best candidate is refined to sub-pixel precision by a least-squares quadratic fit
+of its 3×3 score neighbourhood (and, in the tracker, by :func:`refine_translation`).
 
-Coordinates: x = column, y = row, pixel centres at integer coordinates.  The
-conversion to (row, column) indexing happens in :func:`_gather_windows` only.
+Coordinates: x = column, y = row, pixel centres at integer coordinates.  Arrays
+are indexed (row, column) only where windows are gathered (:func:`_gather_windows`
+and the top-left corners computed just before it).
 """
 
 from __future__ import annotations
