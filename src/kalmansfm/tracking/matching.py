@@ -1,24 +1,26 @@
 """Gated template search: SSD or NCC of square templates inside Kalman gate ellipses.
 
 Everything here works on all tracks at once.  One frame is prepared once
-(:func:`prepare_frame`: a float copy, padded, plus box-filtered sums of the
-intensities and of their squares); the templates are then compared with every
-candidate position in a square box around each predicted position, by one
-batched FFT cross-correlation, and candidates outside the gate ellipse
+(:func:`prepare_frame`: a float32 copy padded by repeating its border, plus the
+box-filtered sums of its squares); the templates are then compared with every
+candidate position in the smallest square box that holds each gate ellipse
 
-    (p - p⁻)ᵀ (Σ⁻_pos)⁻¹ (p - p⁻) ≤ c²
+    (p - p⁻)ᵀ (Σ⁻_pos)⁻¹ (p - p⁻) ≤ c²,
 
-or too close to the image border for a full window are excluded.  The best
-candidate is refined to sub-pixel precision by a least-squares quadratic fit of
-its 3×3 score neighbourhood.
+by one batched FFT cross-correlation per box size, and candidates outside the
+ellipse or too close to the image border for a full window are excluded.  The
+best candidate is refined to sub-pixel precision by a least-squares quadratic fit
+of its 3×3 score neighbourhood (and, in the tracker, by :func:`refine_translation`).
 
-Coordinates: x = column, y = row, pixel centres at integer coordinates.  The
-conversion to (row, column) indexing happens in :func:`_gather_windows` only.
+Coordinates: x = column, y = row, pixel centres at integer coordinates.  Arrays
+are indexed (row, column) only where windows are gathered (:func:`_gather_windows`
+and the top-left corners computed just before it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -65,17 +67,18 @@ class PreparedFrame:
 
     Attributes
     ----------
-    image : (H, W) float64 frame.
-    padded : the frame with ``pad`` zero pixels on every side.
-    window_sum, window_sum_sq : padded box sums of I and I² over ``window``×``window``
-        windows centred on each pixel.
+    image : (H, W) float32 frame.
+    padded : the frame with ``pad`` pixels on every side repeating the border (float32).
+    window_sum_sq : box sums of I² of ``padded`` over ``window``×``window`` windows
+        centred on each pixel (float32).
     window : template side length (odd).
     pad : padding width in pixels.
+    window_sum : (property, computed on first use) the same for the sums of I.
+    ncc_scale : (property, computed on first use) 1 / √(Σ I² - (Σ I)² / n) per window.
     """
 
     image: np.ndarray
     padded: np.ndarray
-    window_sum: np.ndarray
     window_sum_sq: np.ndarray
     window: int
     pad: int
@@ -85,39 +88,72 @@ class PreparedFrame:
         """(height, width) of the frame."""
         return self.image.shape  # type: ignore[return-value]
 
+    @cached_property
+    def window_sum(self) -> np.ndarray:
+        """Padded box sums of I over the windows (float32)."""
+        size = (self.window, self.window)
+        return cv2.boxFilter(self.padded, cv2.CV_32F, size, normalize=False, borderType=cv2.BORDER_REPLICATE)
+
+    @cached_property
+    def ncc_scale(self) -> np.ndarray:
+        """Padded map of 1 / √(Σ I² - (Σ I)² / n) per window, 0 where the window is flat.
+
+        Computed on first use only (SSD searches never need it), in float64 because
+        the difference cancels badly in single precision.
+        """
+        n_pixels = float(self.window * self.window)
+        size = (self.window, self.window)
+        s1 = cv2.boxFilter(self.padded, cv2.CV_64F, size, normalize=False, borderType=cv2.BORDER_REPLICATE)
+        s2 = cv2.sqrBoxFilter(self.padded, cv2.CV_64F, size, normalize=False, borderType=cv2.BORDER_REPLICATE)
+        energy = s2 - s1 * s1 / n_pixels
+        # A flat window (std below 0.5 grey level) has no defined NCC: it scores 0.
+        textured = energy > 0.25 * n_pixels
+        out = np.zeros(self.padded.shape, np.float32)
+        out[textured] = 1.0 / np.sqrt(energy[textured])
+        return out
+
+
+# Extra padding so that search patches can be gathered at the FFT size (a few pixels
+# more than the patch) without leaving the padded frame.
+_FFT_SLACK = 8
+
 
 def prepare_frame(image: np.ndarray, window: int, max_search_radius: int) -> PreparedFrame:
-    """Pad a grey frame and precompute its window sums (one call per frame).
+    """Pad a grey frame and precompute its window sums of I² (one call per frame).
 
     Examples
     --------
     >>> f = prepare_frame(np.ones((20, 30)), window=5, max_search_radius=4)
     >>> f.padded.shape, float(f.window_sum[f.pad + 10, f.pad + 10])
-    ((36, 46), 25.0)
+    ((52, 62), 25.0)
     """
-    image = np.asarray(image, dtype=np.float64)
-    pad = int(max_search_radius) + window // 2 + 2
-    padded = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0.0)
-    # Unnormalised box filter: sum over the window centred on each pixel.
-    window_sum = cv2.boxFilter(padded, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    window_sum_sq = cv2.boxFilter(
-        padded * padded, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT
-    )
-    return PreparedFrame(image, padded, window_sum, window_sum_sq, window, pad)
+    image = np.ascontiguousarray(image, dtype=np.float32)
+    pad = int(max_search_radius) + window // 2 + 2 + _FFT_SLACK
+    padded = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    # Unnormalised box filter: sum over the window centred on each pixel (OpenCV
+    # accumulates float input in double), on the padded frame so that every window
+    # the search can touch is consistent with the pixels it correlates.
+    window_sum_sq = cv2.sqrBoxFilter(padded, cv2.CV_32F, (window, window), normalize=False, borderType=cv2.BORDER_REPLICATE)
+    return PreparedFrame(image, padded, window_sum_sq, window, pad)
 
 
-def sample_patches(image: np.ndarray, centers: np.ndarray, size: int) -> np.ndarray:
+def sample_patches(image: np.ndarray | PreparedFrame, centers: np.ndarray, size: int) -> np.ndarray:
     """Bilinearly sampled ``size``×``size`` patches centred at sub-pixel ``centers``.
+
+    All pixels of one patch share the same fractional offset, so each patch is one
+    (size + 1)² integer window (one fancy-index gather for all patches) blended with
+    four weights — exact bilinear interpolation in double precision.
 
     Parameters
     ----------
-    image : (H, W) grey image.
+    image : (H, W) grey image, or a :class:`PreparedFrame` (whose padding is reused).
     centers : (N, 2) float (x, y) centres.
     size : odd side length.
 
     Returns
     -------
-    (N, size, size) float64 patches; pixels outside the image repeat the border.
+    (N, size, size) float64 patches; pixels outside the image repeat the border;
+    NaN for non-finite centres.
 
     Examples
     --------
@@ -127,23 +163,31 @@ def sample_patches(image: np.ndarray, centers: np.ndarray, size: int) -> np.ndar
            [11.5, 12.5, 13.5],
            [16.5, 17.5, 18.5]])
     """
+    if isinstance(image, PreparedFrame):
+        padded, pad = image.padded, image.pad
+    else:
+        pad = size // 2 + 2
+        padded = cv2.copyMakeBorder(np.asarray(image, dtype=np.float32), pad, pad, pad, pad, cv2.BORDER_REPLICATE)
     centers = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
     n = centers.shape[0]
     if n == 0:
         return np.zeros((0, size, size))
-    half = size // 2
-    offsets = np.arange(-half, half + 1, dtype=np.float64)
-    # One remap call for all patches stacked vertically: map rows are (patch, dy), columns dx.
-    map_x = (centers[:, 0, None, None] + offsets[None, None, :]) * np.ones((1, size, 1))
-    map_y = (centers[:, 1, None, None] + offsets[None, :, None]) * np.ones((1, 1, size))
-    out = cv2.remap(
-        np.asarray(image, dtype=np.float32),
-        map_x.reshape(n * size, size).astype(np.float32),
-        map_y.reshape(n * size, size).astype(np.float32),
-        interpolation=cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    )
-    return out.reshape(n, size, size).astype(np.float64)
+    finite = np.isfinite(centers).all(axis=1)
+    safe = np.where(finite[:, None], centers, 0.0)
+    whole = np.floor(safe)
+    fraction = safe - whole
+    # Top-left (row, column) of each window in the padded array; clipping an index into
+    # the border-replicated padding repeats the border as well.
+    top_left = (whole[:, ::-1] - size // 2 + pad).astype(np.intp)
+    top_left = np.clip(top_left, 0, np.array(padded.shape) - size - 1)
+    windows = _gather_windows(padded, top_left, size + 1).astype(np.float64)
+    fx, fy = fraction[:, 0, None, None], fraction[:, 1, None, None]
+    # I(x + fx, y + fy) = (1 - fy)[(1 - fx) I₀₀ + fx I₀₁] + fy[(1 - fx) I₁₀ + fx I₁₁]
+    upper = windows[:, :-1, :-1] + fx * (windows[:, :-1, 1:] - windows[:, :-1, :-1])
+    lower = windows[:, 1:, :-1] + fx * (windows[:, 1:, 1:] - windows[:, 1:, :-1])
+    patches = upper + fy * (lower - upper)
+    patches[~finite] = np.nan
+    return patches
 
 
 def _gather_windows(array: np.ndarray, top_left_rc: np.ndarray, size: int) -> np.ndarray:
@@ -247,16 +291,24 @@ class MatchResult:
     searched: np.ndarray
 
 
-def _template_spectra(templates: np.ndarray, fft_size: int, score: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Conjugate spectra of the templates (zero-mean for NCC), their energy terms."""
-    n_pixels = templates.shape[-1] * templates.shape[-2]
+def _template_spectra(
+    templates: np.ndarray, fft_size: int, score: str, factor: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Conjugate spectra (fft_size², single precision) of ``factor`` × the templates — zero-mean
+    for NCC — and the templates' raw and zero-mean energies.
+
+    The template occupies only w of the fft_size rows, so the 2D transform is done
+    as a real transform of those w rows followed by a complex one along the columns.
+    """
+    templates = np.asarray(templates, dtype=np.float64)
     mean = templates.mean(axis=(1, 2), keepdims=True)
     centred = templates - mean
     zero_mean_energy = np.einsum("nij,nij->n", centred, centred)
-    used = centred if score == "ncc" else templates
-    spectra = np.conj(scipy.fft.rfft2(used.astype(np.float32), s=(fft_size, fft_size)))
     raw_energy = np.einsum("nij,nij->n", templates, templates)
-    del n_pixels
+    used = (factor * (centred if score == "ncc" else templates)).astype(np.float32)
+    rows = scipy.fft.rfft(used, n=fft_size, axis=2)
+    spectra = scipy.fft.fft(rows, n=fft_size, axis=1)
+    np.conjugate(spectra, out=spectra)
     return spectra, raw_energy, zero_mean_energy
 
 
@@ -319,112 +371,160 @@ def match_templates(
         return MatchResult(positions, scores, dissimilarity, searched)
     cov = np.asarray(position_covariances, dtype=np.float64)
     std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
-    # Half-size of the box that holds the ellipse, rounded up to an even number to
-    # make few distinct sizes; each size is one batched computation.
-    needed = np.ceil(gate_radius * std.max(axis=1) / 2.0) * 2.0
-    needed = np.clip(np.nan_to_num(needed, nan=limit), 1, limit).astype(int)
+    # The gate ellipse reaches e = c·σ from p⁻ along x (σ = √Σxx) and along y; the
+    # integer candidates in [p⁻ - e, p⁻ + e] are at most floor(2e) + 1 per axis, in a
+    # box starting at ceil(p⁻ - e).  One e per track (the larger axis) makes the box square.
+    reach = np.clip(np.nan_to_num(gate_radius * std.max(axis=1), nan=float(limit)), 1.0, float(limit))
+    side = (np.floor(2.0 * reach) + 1.0).astype(int)
+    origin = np.ceil(predicted - reach[:, None])
     inverse = np.linalg.inv(np.where(inside[:, None, None], cov, np.eye(2)))
-    for radius in np.unique(needed[inside]):
-        rows = np.flatnonzero(inside & (needed == radius))
+    for group_side, rows in _size_classes(side, inside):
+        # A box enlarged to the group's side grows on both sides (it stays in the padding).
+        group_origin = origin[rows] - ((group_side - side[rows]) // 2)[:, None]
         _search_group(
-            frame, templates[rows], predicted[rows], centre[rows], inverse[rows], gate_radius, score, int(radius),
+            frame, templates[rows], predicted[rows], group_origin, inverse[rows], gate_radius, score, group_side,
             rows, positions, scores, dissimilarity, searched,
         )
     return MatchResult(positions, scores, dissimilarity, searched)
+
+
+def _size_classes(side: np.ndarray, inside: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """Group the searchable tracks by box side; small groups join the next larger side.
+
+    A larger box than needed is harmless (the gate mask still applies) and one more
+    batched call per frame costs more than a few tracks searched in a larger box.
+    """
+    sides = side[inside]
+    rows_inside = np.flatnonzero(inside)
+    minimum = max(8, len(sides) // 20)
+    classes: list[tuple[int, np.ndarray]] = []
+    carried = np.zeros(0, np.intp)
+    unique = np.unique(sides)
+    for k, value in enumerate(unique):
+        rows = np.concatenate([carried, rows_inside[sides == value]])
+        if len(rows) < minimum and k + 1 < len(unique):
+            carried = rows
+            continue
+        classes.append((int(value), rows))
+        carried = np.zeros(0, np.intp)
+    return classes
 
 
 def _search_group(
     frame: PreparedFrame,
     templates: np.ndarray,
     predicted: np.ndarray,
-    centre: np.ndarray,
+    origin: np.ndarray,
     inverse: np.ndarray,
     gate_radius: float,
     score: str,
-    radius: int,
+    side: int,
     rows: np.ndarray,
     positions: np.ndarray,
     scores: np.ndarray,
     dissimilarity: np.ndarray,
     searched: np.ndarray,
 ) -> None:
-    """Search one group of tracks that share the box half-size ``radius``; fill the outputs at ``rows``."""
+    """Search one group of tracks whose candidate boxes are ``side``×``side`` from ``origin`` (x, y); fill the outputs at ``rows``.
+
+    Every step is one array operation over the whole group: one fancy-index gather of
+    the search patches, one batched FFT cross-correlation, one gather of the window
+    sums, the gate and border mask as broadcasts of row and column terms, one argmin.
+    """
+    n = len(rows)
     w = frame.window
     half_w = w // 2
     height, width = frame.shape
-    side = 2 * radius + 1  # candidates per axis
     span = side + w - 1  # pixels per axis of the search patch
-    n_pixels = float(w * w)
-    centre_int = centre.astype(np.intp)
-    # Top-left pixel of each search patch in padded (row, column) coordinates.
-    top_left = np.stack([centre_int[:, 1], centre_int[:, 0]], axis=1) - radius - half_w + frame.pad
-    patches = _gather_windows(frame.padded, top_left, span)
-    # Box sums at the candidate centres.
-    cand_top_left = top_left + half_w
-    sum_i = _gather_windows(frame.window_sum, cand_top_left, side)
-    sum_i2 = _gather_windows(frame.window_sum_sq, cand_top_left, side)
-
+    origin_int = origin.astype(np.intp)
+    # Top-left candidate of each box in padded (row, column) coordinates.
+    cand_top_left = np.stack([origin_int[:, 1], origin_int[:, 0]], axis=1) + frame.pad
+    # Cross-correlation C(u) = Σ_i A(u + i) T(i) via FFT: C = F⁻¹[F(A) · conj F(T)], in
+    # single precision.  The patches are gathered at the FFT size straight away: the
+    # pixels beyond the span only meet the template's zero padding for the kept
+    # u < side, so there is no wrap-around.  Only the side×side valid outputs are
+    # transformed back (columns first, then the kept rows).
     fft_size = scipy.fft.next_fast_len(span, real=True)
-    spectra, raw_energy, zero_mean_energy = _template_spectra(templates, fft_size, score)
-    # Cross-correlation C(u) = Σ_i A(u + i) T(i) via FFT: C = F⁻¹[F(A) · conj F(T)],
-    # in single precision (twice as fast; the error is far below the score thresholds).
-    spectrum = scipy.fft.rfft2(patches.astype(np.float32), s=(fft_size, fft_size))
+    if fft_size - span > _FFT_SLACK:
+        fft_size = span
+    patches = _gather_windows(frame.padded, cand_top_left - half_w, fft_size)
+    # The template's factor folds the cost's -2 (SSD) or -1 (NCC) into the correlation.
+    factor = -2.0 if score == "ssd" else -1.0
+    spectra, raw_energy, zero_mean_energy = _template_spectra(templates, fft_size, score, factor)
+    spectrum = scipy.fft.rfft2(patches)
     spectrum *= spectra
-    correlation = scipy.fft.irfft2(spectrum, s=(fft_size, fft_size))[:, :side, :side].astype(np.float64)
-    if score == "ssd":
-        # SSD(u) = Σ I² - 2 Σ I T + Σ T²
-        cost = sum_i2 - 2.0 * correlation + raw_energy[:, None, None]
-        cost = np.maximum(cost, 0.0)
-    else:
-        # NCC(u) = Σ I (T - T̄) / (‖T - T̄‖ √(Σ I² - (Σ I)² / n)); the cost is -NCC.
-        image_energy = sum_i2 - sum_i * sum_i / n_pixels
-        template_norm = np.sqrt(np.maximum(zero_mean_energy, 1e-12))
-        # A flat window (std below 0.5 grey level) has no defined NCC: score it 0.
-        textured = image_energy > 0.25 * n_pixels
-        cost = np.where(
-            textured, -correlation / (template_norm[:, None, None] * np.sqrt(np.where(textured, image_energy, 1.0))), 0.0
-        )
+    partial = scipy.fft.ifft(spectrum, axis=1, overwrite_x=True)[:, :side]
+    scaled_correlation = scipy.fft.irfft(partial, n=fft_size, axis=2)[:, :, :side]
 
-    grid = np.arange(-radius, radius + 1, dtype=np.float64)
-    cand_x = centre[:, 0, None, None] + grid[None, None, :]  # (n, 1, side)
-    cand_y = centre[:, 1, None, None] + grid[None, :, None]  # (n, side, 1)
-    dx = cand_x - predicted[:, 0, None, None]
-    dy = cand_y - predicted[:, 1, None, None]
-    # Gate: dᵀ Σ⁻¹ d = a dx² + 2 b dx dy + c dy² ≤ c², written out to stay a broadcast.
-    a, b, c = inverse[:, 0, 0, None, None], inverse[:, 0, 1, None, None], inverse[:, 1, 1, None, None]
-    allowed = a * dx * dx + 2.0 * b * dx * dy + c * dy * dy <= gate_radius * gate_radius
-    # Clip the ellipse to the image: the whole window must lie inside the frame.
-    allowed &= (cand_x >= half_w) & (cand_x <= width - 1 - half_w) & (cand_y >= half_w) & (cand_y <= height - 1 - half_w)
-    any_allowed = allowed.reshape(len(rows), -1).any(axis=1)
-    masked = np.where(allowed, cost, np.inf).reshape(len(rows), -1)
-    best = np.argmin(masked, axis=1)
+    if score == "ssd":
+        # SSD(u) = Σ I² - 2 Σ I T + Σ T²; the constant Σ T² is added to the best only
+        # (it moves neither the argmin nor the quadratic fit's stationary point).
+        cost = _gather_windows(frame.window_sum_sq, cand_top_left, side) + scaled_correlation
+    else:
+        # NCC(u) = Σ I (T - T̄) / (‖T - T̄‖ √(Σ I² - (Σ I)² / n)); the cost is -NCC·‖T - T̄‖
+        # (the positive per-track factor does not move the argmin or the fit either).
+        cost = _gather_windows(frame.ncc_scale, cand_top_left, side) * scaled_correlation
+    flat_cost = cost.reshape(n, -1)
+
+    # Gate: dᵀ Σ⁻¹ d = a dx² + 2 b dx dy + c dy² ≤ c², with the dx² and dy² terms per
+    # column and per row; a candidate whose window leaves the frame gets +inf there.
+    grid = np.arange(side, dtype=np.float64)
+    cand_x = origin[:, 0, None] + grid  # (n, side)
+    cand_y = origin[:, 1, None] + grid
+    dx = cand_x - predicted[:, 0, None]
+    dy = cand_y - predicted[:, 1, None]
+    column_term = inverse[:, 0, 0, None] * dx * dx
+    row_term = inverse[:, 1, 1, None] * dy * dy
+    column_term[(cand_x < half_w) | (cand_x > width - 1 - half_w)] = np.inf
+    row_term[(cand_y < half_w) | (cand_y > height - 1 - half_w)] = np.inf
+    cross_coefficient = 2.0 * inverse[:, 0, 1]
+    radius_sq = gate_radius * gate_radius
+
+    # Usually the best candidate of the whole box already lies in the gate (and the
+    # image); then it is the best in the gate as well, and the full mask is not needed.
+    best = np.argmin(flat_cost, axis=1)
+    k = np.arange(n)
+    by, bx = np.divmod(best, side)
+    best_mahalanobis_sq = column_term[k, bx] + row_term[k, by] + cross_coefficient * dx[k, bx] * dy[k, by]
+    outside = np.flatnonzero(~(best_mahalanobis_sq <= radius_sq))
+    ok = np.ones(n, dtype=bool)
+    if len(outside):
+        o = outside
+        mahalanobis_sq = (cross_coefficient[o, None] * dy[o]).astype(np.float32)[:, :, None] * dx[o].astype(np.float32)[:, None, :]
+        mahalanobis_sq += column_term[o].astype(np.float32)[:, None, :]
+        mahalanobis_sq += row_term[o].astype(np.float32)[:, :, None]
+        masked = np.where(mahalanobis_sq <= np.float32(radius_sq), cost[o], np.float32(np.inf)).reshape(len(o), -1)
+        best[o] = np.argmin(masked, axis=1)
+        ok[o] = np.isfinite(masked[np.arange(len(o)), best[o]])
     by, bx = np.divmod(best, side)
     # 3×3 neighbourhood of the best candidate (edges: repeat the centre so that axis is not refined).
     ny = np.clip(by[:, None] + np.array([-1, 0, 1]), 0, side - 1)
     nx = np.clip(bx[:, None] + np.array([-1, 0, 1]), 0, side - 1)
-    k = np.arange(len(rows))[:, None, None]
-    neighbourhood = cost[k, ny[:, :, None], nx[:, None, :]]
-    at_edge_x = (bx == 0) | (bx == side - 1)
-    at_edge_y = (by == 0) | (by == side - 1)
+    neighbourhood = cost[k[:, None, None], ny[:, :, None], nx[:, None, :]].astype(np.float64)
     refine = subpixel_peak(neighbourhood)
-    refine[at_edge_x, 0] = 0.0
-    refine[at_edge_y, 1] = 0.0
-    best_cost = cost[np.arange(len(rows)), by, bx]
+    refine[(bx == 0) | (bx == side - 1), 0] = 0.0
+    refine[(by == 0) | (by == side - 1), 1] = 0.0
+    best_cost = neighbourhood[:, 1, 1]
 
-    ok = any_allowed
-    pos = np.stack([centre[:, 0] + bx - radius, centre[:, 1] + by - radius], axis=1) + refine
+    pos = np.stack([origin[:, 0] + bx, origin[:, 1] + by], axis=1) + refine
     positions[rows[ok]] = pos[ok]
     if score == "ssd":
-        scores[rows[ok]] = best_cost[ok]
-        dissimilarity[rows[ok]] = best_cost[ok] / np.maximum(zero_mean_energy[ok], 1e-12)
+        # The score itself directly, in double precision: Σ (I - T)² at the best candidate
+        # (the FFT cost's cancellation of large terms leaves errors of ~1e-7 Σ I²).
+        best_windows = _gather_windows(frame.padded, cand_top_left - half_w + np.stack([by, bx], axis=1), w)
+        difference = best_windows - templates
+        ssd = np.einsum("nij,nij->n", difference, difference)
+        scores[rows[ok]] = ssd[ok]
+        dissimilarity[rows[ok]] = ssd[ok] / np.maximum(zero_mean_energy[ok], 1e-12)
     else:
-        scores[rows[ok]] = -best_cost[ok]
-        dissimilarity[rows[ok]] = 1.0 + best_cost[ok]
+        ncc = -best_cost / np.sqrt(np.maximum(zero_mean_energy, 1e-12))
+        scores[rows[ok]] = ncc[ok]
+        dissimilarity[rows[ok]] = 1.0 - ncc[ok]
     searched[rows[ok]] = True
 
 
 def refine_translation(
-    image: np.ndarray,
+    image: np.ndarray | PreparedFrame,
     templates: np.ndarray,
     positions: np.ndarray,
     iterations: int = 3,
@@ -446,7 +546,7 @@ def refine_translation(
 
     Parameters
     ----------
-    image : (H, W) grey frame.
+    image : (H, W) grey frame, or its :class:`PreparedFrame` (faster: no padding per call).
     templates : (N, w, w) templates (w odd).
     positions : (N, 2) start positions (x, y), e.g. the best integer match.
 
@@ -466,10 +566,13 @@ def refine_translation(
     n, w = templates.shape[0], templates.shape[-1]
     if n == 0:
         return positions.copy()
-    gy, gx = np.gradient(np.asarray(templates, dtype=np.float64), axis=(1, 2))
-    # Drop the outer ring where np.gradient is one-sided.
-    inner = (slice(None), slice(1, w - 1), slice(1, w - 1))
-    gx, gy, t_in = gx[inner], gy[inner], templates[inner]
+    if not isinstance(image, PreparedFrame):
+        image = prepare_frame(image, w, 1)  # pad once for all iterations
+    templates = np.asarray(templates, dtype=np.float64)
+    # Central differences on the inner (w-2)² pixels, where both neighbours exist.
+    gx = 0.5 * (templates[:, 1:-1, 2:] - templates[:, 1:-1, :-2])
+    gy = 0.5 * (templates[:, 2:, 1:-1] - templates[:, :-2, 1:-1])
+    t_in = templates[:, 1:-1, 1:-1]
     t_in = t_in - t_in.mean(axis=(1, 2), keepdims=True)
     hessian = np.stack(
         [np.einsum("nij,nij->n", gx, gx), np.einsum("nij,nij->n", gx, gy), np.einsum("nij,nij->n", gx, gy), np.einsum("nij,nij->n", gy, gy)],
@@ -481,7 +584,7 @@ def refine_translation(
     t_norm = np.sqrt(np.einsum("nij,nij->n", t_in, t_in))
     current = positions.copy()
     for _ in range(iterations):
-        patch = sample_patches(image, current, w)[inner]
+        patch = sample_patches(image, current, w - 2)
         patch = patch - patch.mean(axis=(1, 2), keepdims=True)
         p_norm = np.sqrt(np.einsum("nij,nij->n", patch, patch))
         gain = np.where(p_norm > 1e-9, t_norm / np.maximum(p_norm, 1e-9), 1.0)

@@ -91,6 +91,7 @@ class _FrameRecord:
 
 
 def _as_grey(frame: object, index: int) -> np.ndarray:
+    """The frame as a 2D float32 array (exact for 8- and 16-bit images; single precision is all the matcher uses)."""
     array = np.asarray(frame)
     if array.ndim == 3 and array.shape[2] in (3, 4):
         array = array[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR weights as OpenCV
@@ -98,7 +99,7 @@ def _as_grey(frame: object, index: int) -> np.ndarray:
         raise InvalidInputError(f"frame {index} must be a 2D grey image (H, W); got shape {array.shape}")
     if not np.issubdtype(array.dtype, np.number):
         raise InvalidInputError(f"frame {index} must be numeric; got dtype {array.dtype}")
-    return np.asarray(array, dtype=np.float64)
+    return np.ascontiguousarray(array, dtype=np.float32)
 
 
 class Tracker:
@@ -378,7 +379,7 @@ class Tracker:
         second = np.where(found[:, None], match.positions, self._pending_positions)
         # s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀]
         states = np.concatenate([second, second - self._pending_positions], axis=1)
-        templates = np.where(found[:, None, None], sample_patches(frame.image, second, self.window), self._pending_templates)
+        templates = np.where(found[:, None, None], sample_patches(frame, second, self.window), self._pending_templates)
         status = np.where(found, MEASURED, PREDICTED).astype(np.int8)
         covariances = np.broadcast_to(self.model.P0, (n, 4, 4)).copy()
         self._add_to_filter(self._pending_ids, states, covariances, templates, self._pending_templates, (~found).astype(np.int64))
@@ -440,7 +441,7 @@ class Tracker:
             z, dissimilarity, used_anchor = self._anchor_correction(frame, z, good, dissimilarity)
             used = np.where(used_anchor[:, None, None], self._anchors, self._templates)
         if self.refine and good.any():
-            z[good] = refine_translation(frame.image, used[good], z[good])
+            z[good] = refine_translation(frame, used[good], z[good])
         z[~good] = np.nan
         kf.update(z)
 
@@ -455,7 +456,7 @@ class Tracker:
         record = _FrameRecord(self._ids.copy(), states, covariances, status, dissimilarity)
 
         if self.template_policy != "first" and good.any():
-            fresh = sample_patches(frame.image, z[good], self.window)
+            fresh = sample_patches(frame, z[good], self.window)
             self._templates = self._templates.copy()
             self._templates[good] = fresh
         self._misses = misses
@@ -489,7 +490,7 @@ class Tracker:
         renew = rows[~agrees][strikes[rows[~agrees]] >= self.anchor_patience]
         if len(renew):
             self._anchors = self._anchors.copy()
-            self._anchors[renew] = sample_patches(frame.image, z[renew], self.window)
+            self._anchors[renew] = sample_patches(frame, z[renew], self.window)
             strikes[renew] = 0
         self._anchor_strikes = strikes
         used_anchor = np.zeros(len(z), dtype=bool)
