@@ -52,6 +52,7 @@ from .matching import (
     refine_translation,
     sample_patches,
 )
+from .smoothing import smooth_tracks
 from .tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks
 
 __all__ = ["FrameEstimate", "Tracker", "track"]
@@ -552,6 +553,7 @@ def track(
     points: object | None = None,
     *,
     progress: bool = False,
+    smooth: bool | int = False,
     **options: Any,
 ) -> Tracks:
     """Track points through a sequence of frames.
@@ -562,6 +564,9 @@ def track(
         (folder of images, glob or video; see :func:`kalmansfm.io.frames.read_frames`).
     points : (P, 2) positions (x, y) in frame 0, or None to detect corners.
     progress : show a tqdm progress bar on stderr.
+    smooth : False (online estimates), True (Rauch–Tung–Striebel smoothing of each
+        finished track over its whole life) or an int L (fixed-lag smoothing: frame t
+        uses the frames up to t + L); see :func:`kalmansfm.tracking.smoothing.smooth_tracks`.
     **options : passed to :class:`Tracker` (``window``, ``score``, ``gate_probability``,
         ``gate_radius``, ``max_misses``, ``template_policy``, ``redetect``, …).
 
@@ -608,5 +613,7 @@ def track(
         tracker.feed(frame)
     if tracker.n_frames < 3:
         raise NotEnoughDataError(f"tracking needs at least 3 frames; got {tracker.n_frames}")
-    return tracker.result()
+    if smooth is False:
+        return tracker.result()
+    return smooth_tracks(tracker.result(), model=tracker.model, lag=None if smooth is True else int(smooth))
 
