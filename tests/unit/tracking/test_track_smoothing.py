@@ -245,3 +245,15 @@ def test_smoothing_brings_the_scene_tracks_closer_to_the_truth(small_card_runs):
         # Coasting frames: interpolation between both ends instead of extrapolation (0.55 -> 0.07 px pooled
         # over seeds 0-2 in benchmarks/bench_smoothing.py); asserted with room: at least halved.
         assert rms(smoothed_error[coasting]) <= 0.5 * rms(filtered_error[coasting])
+
+
+def test_track_with_smooth_equals_smoothing_its_result():
+    scene = render_scene(n_frames=20, seed=4)
+    start = scene.positions[0, scene.visible[0]]
+    online = track(scene.frames, start)
+    for option, lag in ((True, None), (2, 2)):
+        smoothed = track(scene.frames, start, smooth=option)
+        expected = smooth_tracks(online, lag=lag)
+        np.testing.assert_array_equal(smoothed.positions, expected.positions)
+        np.testing.assert_array_equal(smoothed.covariances, expected.covariances)
+        assert smoothed.parameters["smoothed"] == (True if lag is None else lag)
