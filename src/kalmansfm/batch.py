@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import InvalidInputError, KalmanSfmError
-from .io.atomic import atomic_write
+from .io.atomic import atomic_write, check_output_directory
 
 __all__ = ["BatchRow", "BatchResult", "check_sequence", "run_batch", "SCENE_PREFIX"]
 
@@ -202,7 +202,7 @@ def run_batch(
     if n_workers is not None and n_workers < 1:
         # a LocalCluster without workers would wait for ever
         raise InvalidInputError(f"n_workers must be >= 1; got {n_workers}")
-    root = Path(out_dir)
+    root = check_output_directory(out_dir)
     root.mkdir(parents=True, exist_ok=True)
     names = _folder_names(list(sequences))
     options = {"html": html, **pipeline_options}

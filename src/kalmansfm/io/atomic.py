@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ..errors import InvalidInputError
 
-__all__ = ["OutputDirectory", "output_directory", "atomic_write"]
+__all__ = ["OutputDirectory", "output_directory", "atomic_write", "check_output_directory"]
 
 
 def _temporary_name(final: Path) -> Path:
@@ -86,6 +86,36 @@ class OutputDirectory:
         for tmp in self._staged.values():
             tmp.unlink(missing_ok=True)
         self._staged.clear()
+
+
+def check_output_directory(path: str | os.PathLike[str]) -> Path:
+    """Raise :class:`InvalidInputError` if ``path`` cannot become a run's output folder; create nothing.
+
+    Call it before a long computation so that a typo in ``--out`` is reported at
+    once rather than after the work.  :func:`output_directory` checks again (and
+    for real, by writing a probe file) when the results are written.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (d / "notes.txt").write_text("x")
+    >>> check_output_directory(d / "new" / "run") == d / "new" / "run"
+    True
+    >>> check_output_directory(d / "notes.txt" / "run")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: output folder ... is not writable (... is a file, not a folder)
+    """
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise InvalidInputError(f"output folder {folder} exists and is not a folder")
+    existing = next((p for p in [folder, *folder.parents] if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise InvalidInputError(f"output folder {folder} is not writable ({existing} is a file, not a folder)")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise InvalidInputError(f"output folder {folder} is not writable (no write permission in {existing})")
+    return folder
 
 
 @contextmanager
