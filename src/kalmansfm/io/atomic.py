@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
+import threading
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -44,6 +46,22 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
     return final
 
 
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold SIGINT back for the duration of the block; raise KeyboardInterrupt after it if one came."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread receives signals (and may set handlers)
+        return
+    received = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+    if received:
+        raise KeyboardInterrupt
+
+
 class OutputDirectory:
     """Stages the files of one run; :meth:`commit` renames them into place together."""
 
@@ -72,13 +90,18 @@ class OutputDirectory:
         return self.path / name
 
     def commit(self) -> list[Path]:
-        """Rename every staged file to its final name."""
+        """Rename every staged file to its final name.
+
+        A Ctrl-C that arrives during the renames is held back until they are all
+        done (then raised), so that the folder never mixes old and new files.
+        """
         done = []
-        for final, tmp in self._staged.items():
-            if tmp.exists():
-                os.replace(tmp, final)
-                done.append(final)
-        self._staged.clear()
+        with _sigint_deferred():
+            for final, tmp in self._staged.items():
+                if tmp.exists():
+                    os.replace(tmp, final)
+                    done.append(final)
+            self._staged.clear()
         return done
 
     def discard(self) -> None:
