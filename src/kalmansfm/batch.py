@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import Any
 
 from .errors import InvalidInputError, KalmanSfmError
-from .io.atomic import atomic_write
+from .io.atomic import atomic_write, check_output_directory
 
-__all__ = ["BatchRow", "BatchResult", "run_batch", "SCENE_PREFIX"]
+__all__ = ["BatchRow", "BatchResult", "check_sequence", "run_batch", "SCENE_PREFIX"]
 
 log = logging.getLogger("kalmansfm")
 
@@ -106,6 +106,26 @@ def _parse(spec: str) -> dict[str, Any]:
     return {"input": spec}
 
 
+def check_sequence(spec: str) -> None:
+    """Raise :class:`InvalidInputError` if ``spec`` is visibly not a sequence (before any work).
+
+    ``scene:SEED`` needs an integer seed; a path must exist and hold enough frames
+    (the checks :func:`kalmansfm.io.read_frames` makes without decoding them all).
+
+    Examples
+    --------
+    >>> check_sequence("scene:3")
+    >>> check_sequence("scene:x")
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: sequence 'scene:x': the built-in scene is named scene:SEED with an integer seed
+    """
+    if _parse(spec)["input"] is not None:
+        from .io.frames import read_frames
+
+        read_frames(spec)
+
+
 def _row_from_summary(spec: str, out_dir: str, status: str, summary: dict[str, Any], seconds: float | None) -> BatchRow:
     t, f = summary.get("tracking", {}), summary.get("factorization", {})
     return BatchRow(
@@ -179,7 +199,10 @@ def run_batch(
     """
     if not sequences:
         raise InvalidInputError("give at least one sequence")
-    root = Path(out_dir)
+    if n_workers is not None and n_workers < 1:
+        # a LocalCluster without workers would wait for ever
+        raise InvalidInputError(f"n_workers must be >= 1; got {n_workers}")
+    root = check_output_directory(out_dir)
     root.mkdir(parents=True, exist_ok=True)
     names = _folder_names(list(sequences))
     options = {"html": html, **pipeline_options}
@@ -204,7 +227,14 @@ def run_batch(
         if scheduler is None:
             # ":0": the diagnostics server takes any free port, so two batches can run side by side
             cluster = LocalCluster(
-                n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=logging.WARNING
+                n_workers=n_workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                # the scheduler's HTTP server starts even without a dashboard; on a free port, not
+                # 8787, so a second cluster on the machine does not print a port warning
+                scheduler_kwargs={"dashboard_address": ":0"},
+                silence_logs=logging.WARNING,
             )
         client = Client(scheduler if scheduler is not None else cluster)
         try:

@@ -23,7 +23,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InvalidInputError, NotEnoughDataError
-from .io.atomic import OutputDirectory, output_directory
+from .io.atomic import OutputDirectory, check_output_directory, output_directory
 from .io.ground_truth import frame_name, scene_files
 from .io.structure import motion_csv, structure_csv, structure_ply
 from .io.track_table import TrackPositions, read_track_positions
@@ -349,6 +349,7 @@ def run_pipeline(
     >>> run.summary["tracking"]["rms_error_px"] < 0.5
     True
     """
+    check_output_directory(out_dir)  # before the work, not after it
     timings: dict[str, float] = {}
     started = time.perf_counter()
     options = dict(track_options or {})

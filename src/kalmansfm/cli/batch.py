@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..batch import run_batch
+from ..batch import check_sequence, run_batch
+from ..errors import InvalidInputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -29,6 +30,12 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     """Run the batch; print the summary table; exit 1 if any sequence failed."""
+    # Mistakes visible before any work (a misspelt path, a bad scene:SEED) stop the run at once;
+    # the library's run_batch would instead report them as failed rows after the others ran.
+    for spec in args.sequences:
+        check_sequence(spec)
+    if args.workers is not None and args.workers < 1:
+        raise InvalidInputError(f"--workers must be >= 1; got {args.workers}")
     result = run_batch(
         args.sequences,
         args.out,

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..io.atomic import output_directory
+from ..errors import InvalidInputError
+from ..io.atomic import check_output_directory, output_directory
 from ..io.structure import motion_csv, structure_csv, structure_ply
 from ..pipeline import read_tracks_for_factorization
 from ..report.plot_structure import plot_structure
@@ -50,6 +51,9 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.max_iterations < 1:
+        raise InvalidInputError(f"--max-iterations must be >= 1; got {args.max_iterations}")
+    check_output_directory(args.out)
     tracks = read_tracks_for_factorization(args.tracks, smooth=args.smooth)
     weights = None if args.no_weights else tracks.weights
     log.info("read %d frames x %d tracks from %s", *tracks.positions.shape[:2], args.tracks)

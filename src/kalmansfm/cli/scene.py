@@ -80,6 +80,9 @@ def run(args: argparse.Namespace) -> int:
         occluder = Occluder(track_id=track_id, first_frame=first_frame, n_frames=n_frames, marker=args.occluder_marker)
     elif args.occluder_marker:
         raise InvalidInputError("--occluder-marker needs --occluder")
+    from ..io.atomic import check_output_directory
+
+    check_output_directory(args.out)
     # rendering validates every option before the output folder is touched
     scene = render_scene(
         n_frames=args.frames,

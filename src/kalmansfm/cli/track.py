@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import InvalidInputError
-from ..io.atomic import output_directory
+from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames
 from ..io.tracks import check_points_inside, read_points_csv, write_tracks_csv, write_tracks_npz
 from ..report.plot_tracks import plot_covariance_trace, plot_tracks, write_tracks_gif
@@ -81,6 +81,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_directory(args.out)
     frames = read_frames(args.input)
     points = track_ids = None
     if args.points:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
+import threading
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -17,7 +19,7 @@ from pathlib import Path
 
 from ..errors import InvalidInputError
 
-__all__ = ["OutputDirectory", "output_directory", "atomic_write"]
+__all__ = ["OutputDirectory", "output_directory", "atomic_write", "check_output_directory"]
 
 
 def _temporary_name(final: Path) -> Path:
@@ -42,6 +44,22 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
     finally:
         tmp.unlink(missing_ok=True)
     return final
+
+
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold SIGINT back for the duration of the block; raise KeyboardInterrupt after it if one came."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread receives signals (and may set handlers)
+        return
+    received = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+    if received:
+        raise KeyboardInterrupt
 
 
 class OutputDirectory:
@@ -72,13 +90,18 @@ class OutputDirectory:
         return self.path / name
 
     def commit(self) -> list[Path]:
-        """Rename every staged file to its final name."""
+        """Rename every staged file to its final name.
+
+        A Ctrl-C that arrives during the renames is held back until they are all
+        done (then raised), so that the folder never mixes old and new files.
+        """
         done = []
-        for final, tmp in self._staged.items():
-            if tmp.exists():
-                os.replace(tmp, final)
-                done.append(final)
-        self._staged.clear()
+        with _sigint_deferred():
+            for final, tmp in self._staged.items():
+                if tmp.exists():
+                    os.replace(tmp, final)
+                    done.append(final)
+            self._staged.clear()
         return done
 
     def discard(self) -> None:
@@ -86,6 +109,36 @@ class OutputDirectory:
         for tmp in self._staged.values():
             tmp.unlink(missing_ok=True)
         self._staged.clear()
+
+
+def check_output_directory(path: str | os.PathLike[str]) -> Path:
+    """Raise :class:`InvalidInputError` if ``path`` cannot become a run's output folder; create nothing.
+
+    Call it before a long computation so that a typo in ``--out`` is reported at
+    once rather than after the work.  :func:`output_directory` checks again (and
+    for real, by writing a probe file) when the results are written.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (d / "notes.txt").write_text("x")
+    >>> check_output_directory(d / "new" / "run") == d / "new" / "run"
+    True
+    >>> check_output_directory(d / "notes.txt" / "run")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: output folder ... is not writable (... is a file, not a folder)
+    """
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise InvalidInputError(f"output folder {folder} exists and is not a folder")
+    existing = next((p for p in [folder, *folder.parents] if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise InvalidInputError(f"output folder {folder} is not writable ({existing} is a file, not a folder)")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise InvalidInputError(f"output folder {folder} is not writable (no write permission in {existing})")
+    return folder
 
 
 @contextmanager

@@ -13,6 +13,7 @@ import glob as globbing
 import os
 import re
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,12 +60,32 @@ def list_image_files(folder: str | os.PathLike[str]) -> list[Path]:
     return sorted(files, key=lambda p: natural_key(p.name))
 
 
+@contextmanager
+def _quiet_decoders() -> Iterator[None]:
+    """Silence OpenCV's and FFmpeg's own warnings on stderr while decoding.
+
+    A file they cannot decode is reported once, as our InvalidInputError naming the
+    file; their native log lines ("PNG input buffer is incomplete", "moov atom not
+    found") would otherwise reach the terminal as well.  OpenCV reads
+    OPENCV_FFMPEG_LOGLEVEL once, when its FFmpeg backend first opens a file, so that
+    one stays set for the process (-8 = AV_LOG_QUIET; a value the user set is kept).
+    """
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    previous = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(previous)
+
+
 def _decode_image(path: Path) -> np.ndarray:
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise InvalidInputError(f"cannot read image {path}: {exc.strerror or exc}") from None
-    image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    with _quiet_decoders():
+        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
     if image is None:
         raise InvalidInputError(f"{path} is not a readable image (empty, truncated or not an image)")
     return image
@@ -111,7 +132,8 @@ class FrameSource:
 
 
 def _video_frames(path: Path) -> Iterator[np.ndarray]:
-    capture = cv2.VideoCapture(str(path))
+    with _quiet_decoders():
+        capture = cv2.VideoCapture(str(path))
     produced = 0
     try:
         if capture.isOpened():
@@ -133,6 +155,9 @@ def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
         import av
     except ImportError:
         raise InvalidInputError(f"{path} could not be decoded as a video by OpenCV (and PyAV is not installed)") from None
+    # libav's own log lines would go straight to stderr; PANIC routes only fatal ones to Python logging
+    previous_level = av.logging.get_level()
+    av.logging.set_level(av.logging.PANIC)
     produced = 0
     try:
         with av.open(str(path)) as container:
@@ -143,12 +168,15 @@ def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
         if not produced:
             raise InvalidInputError(f"{path} is not a decodable video or image ({exc})") from None
         raise InvalidInputError(f"{path}: video decoding failed after frame {produced - 1} ({exc})") from None
+    finally:
+        av.logging.set_level(previous_level)
     if not produced:
         raise InvalidInputError(f"{path} is not a decodable video (no frames)")
 
 
 def _video_count(path: Path) -> int | None:
-    capture = cv2.VideoCapture(str(path))
+    with _quiet_decoders():
+        capture = cv2.VideoCapture(str(path))
     try:
         if not capture.isOpened():
             return None

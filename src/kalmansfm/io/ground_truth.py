@@ -188,32 +188,43 @@ def _read_table(path: Path, required: list[str]) -> dict[str, np.ndarray]:
     """Columns of a CSV file with a header, as float arrays; checks the required columns."""
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such file")
-    with path.open(newline="", encoding="utf-8") as handle:
-        reader = csv.reader(handle)
-        header = next(reader, None)
-        if header is None:
-            raise InvalidInputError(f"{path}: empty file; expected a header with {', '.join(required)}")
-        header = [h.strip() for h in header]
-        missing = [c for c in required if c not in header]
-        if missing:
-            raise InvalidInputError(f"{path}: missing column(s) {', '.join(missing)}; header is {','.join(header)}")
-        rows = []
-        for line_number, row in enumerate(reader, start=2):
-            if not row:
-                continue
-            if len(row) != len(header):
-                raise InvalidInputError(f"{path}, row {line_number}: expected {len(header)} fields, got {len(row)}")
-            try:
-                rows.append([float(v) if v.strip() else np.nan for v in row])
-            except ValueError:
-                raise InvalidInputError(f"{path}, row {line_number}: expected numbers, got {','.join(row)}") from None
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            reader = csv.reader(handle)
+            header = next(reader, None)
+            if header is None:
+                raise InvalidInputError(f"{path}: empty file; expected a header with {', '.join(required)}")
+            header = [h.strip() for h in header]
+            missing = [c for c in required if c not in header]
+            if missing:
+                raise InvalidInputError(f"{path}: missing column(s) {', '.join(missing)}; header is {','.join(header)}")
+            rows = []
+            for line_number, row in enumerate(reader, start=2):
+                if not row:
+                    continue
+                if len(row) != len(header):
+                    raise InvalidInputError(f"{path}, row {line_number}: expected {len(header)} fields, got {len(row)}")
+                try:
+                    rows.append([float(v) if v.strip() else np.nan for v in row])
+                except ValueError:
+                    raise InvalidInputError(f"{path}, row {line_number}: expected numbers, got {','.join(row)}") from None
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{path}: not a UTF-8 text CSV file") from None
+    except csv.Error as exc:
+        raise InvalidInputError(f"{path}: not a readable CSV file ({exc})") from None
     table = np.array(rows, dtype=np.float64).reshape(len(rows), len(header))
     return {name: table[:, k] for k, name in enumerate(header)}
+
+
+# Frame numbers and track ids index dense arrays: refuse numbers that would need absurd memory.
+MAX_INDEX = 10_000_000
 
 
 def _as_index(values: np.ndarray, path: Path, column: str) -> np.ndarray:
     if len(values) and (not np.all(np.isfinite(values)) or np.any(values != np.round(values)) or values.min() < 0):
         raise InvalidInputError(f"{path}: column {column} must hold non-negative integers")
+    if len(values) and values.max() > MAX_INDEX:
+        raise InvalidInputError(f"{path}: column {column} holds {values.max():.0f}; at most {MAX_INDEX} is supported")
     return values.astype(np.int64)
 
 

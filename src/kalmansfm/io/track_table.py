@@ -191,8 +191,8 @@ def _read_npz(file: Path) -> TrackPositions:
     try:
         with np.load(file, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise InvalidInputError(f"{file}: not a readable NPZ file ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise InvalidInputError(f"{file}: not a readable NPZ file ({exc or type(exc).__name__})") from None
     missing = [k for k in ("positions", "status", "track_ids") if k not in arrays]
     if missing:
         raise InvalidInputError(f"{file}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(arrays)) or 'none'}")

@@ -19,6 +19,7 @@ import csv
 import io
 import json
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,8 @@ from ..tracking.tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks
 
 __all__ = ["read_points_csv", "read_tracks_csv", "read_tracks_npz", "tracks_to_csv", "write_tracks_csv", "write_tracks_npz"]
 
+# Frame numbers index a dense (frames, tracks, 4, 4) array: refuse numbers that would need absurd memory.
+MAX_FRAMES = 1_000_000
 CSV_COLUMNS = ("frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y", "status")
 _WORDS = {MEASURED: "measured", PREDICTED: "predicted", LOST: "lost"}
 _CODES = {word: code for code, word in _WORDS.items()}
@@ -102,12 +105,20 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     try:
         with np.load(path) as data:
             arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
-        raise InvalidInputError(f"{path} is not a readable tracks .npz file ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise InvalidInputError(f"{path} is not a readable tracks .npz file ({exc or type(exc).__name__})") from None
     missing = {"positions", "states", "covariances", "status", "track_ids"} - set(arrays)
     if missing:
         raise InvalidInputError(f"{path} lacks the arrays {sorted(missing)}")
+    for name in ("positions", "states", "covariances", "scores"):
+        if name in arrays and arrays[name].dtype.kind not in "fiub":
+            raise InvalidInputError(f"{path}: {name} must be a real numeric array; got dtype {arrays[name].dtype}")
+    for name in ("status", "track_ids"):
+        if arrays[name].dtype.kind not in "iub":
+            raise InvalidInputError(f"{path}: {name} must be an integer array; got dtype {arrays[name].dtype}")
     size = arrays.get("image_size")
+    if size is not None and (size.shape != (2,) or size.dtype.kind not in "iu" or (size <= 0).any()):
+        raise InvalidInputError(f"{path}: image_size must be two positive integers (width, height); got {size!r}")
     parameters = {}
     if "parameters" in arrays:
         try:
@@ -148,6 +159,9 @@ def read_tracks_csv(path: str | os.PathLike[str], n_frames: int | None = None) -
             code = _CODES[row["status"].strip()]
         except (ValueError, KeyError):
             raise InvalidInputError(f"{path} row {line}: expected integers, numbers and a status word; got {dict(row)}") from None
+        limit = MAX_FRAMES if n_frames is None else int(n_frames)
+        if not 0 <= frame < limit:
+            raise InvalidInputError(f"{path} row {line}: frame must be in 0 … {limit - 1}; got {frame}")
         parsed.append((frame, track_id, numbers, code))
     ids = sorted({p[1] for p in parsed})
     column = {i: c for c, i in enumerate(ids)}

@@ -392,6 +392,8 @@ def render_scene(
     if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 3:
         raise NotEnoughDataError(f"n_frames must be an integer >= 3; got {n_frames!r}")
     width, height = _check_size(image_size)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InvalidInputError(f"seed must be a non-negative integer; got {seed!r}")
     if not np.isfinite(pixel_noise_std) or pixel_noise_std < 0:
         raise InvalidInputError(f"pixel_noise_std must be a finite number >= 0; got {pixel_noise_std!r}")
     if scenario not in SCENARIOS:

@@ -1,0 +1,289 @@
+"""Catalogue of bad input: every subcommand refuses it with exit code 2 and one line, and writes nothing.
+
+Each row of ``CASES`` is (subcommand, arguments, a fragment the error line must contain).
+``{d}`` is the folder of prepared bad inputs, ``{out}`` the output folder.  Every case
+whose arguments hold ``{out}`` runs twice: with a fresh output path (it must not be
+created) and with an existing folder holding an earlier result (it must stay byte for
+byte as it was).  The input folder is compared byte for byte before and after as well.
+
+"Not writable" is a path below a regular file (``{d}/a_file.txt/sub``): creating it
+fails with ENOTDIR for every user, root included, on every POSIX system and on
+Windows, whereas ``chmod`` does not stop root and ``/proc`` exists on Linux only.
+
+A few cases also run as a real process to show that no traceback and no native
+library warning (OpenCV, FFmpeg, Dask) reaches the terminal.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from kalmansfm.cli.main import main
+from kalmansfm.scenes import render_scene
+
+SRC = Path(__file__).resolve().parents[2] / "src"
+NOT_WRITABLE = "{d}/a_file.txt/sub"
+
+CASES = [
+    # --- track -------------------------------------------------------------------------------
+    ("track", "{d}/missing --out {out}", "missing does not exist"),
+    ("track", "{d}/empty --out {out}", "empty holds no image files"),
+    ("track", "{d}/text_as_png --out {out}", "text_as_png/f0.png is not a readable image"),
+    ("track", "{d}/truncated --out {out}", "truncated/f1.png is not a readable image"),
+    ("track", "{d}/broken.mp4 --out {out}", "broken.mp4 is not a decodable video"),
+    ("track", "{d}/sizes --out {out}", "sizes/f2.png is 150×100 but f0.png is 160×120"),
+    ("track", "{d}/one_frame --out {out}", "one_frame holds 1 image(s)"),
+    ("track", "{d}/one_frame/f0.png --out {out}", "f0.png is a single image"),
+    ("track", "{d}/good --out {out} --points {d}/outside.csv", "outside.csv row 3: point (500, 20) lies outside"),
+    ("track", "{d}/good --out {out} --points {d}/no_y.csv", "no_y.csv row 1 (header): missing column(s) y"),
+    ("track", "{d}/good --out {out} --points {d}/nan.csv", "nan.csv row 2: x and y must be finite"),
+    ("track", "{d}/good --out {out} --points {d}/inf.csv", "inf.csv row 2: x and y must be finite"),
+    ("track", "{d}/good --out {out} --points {d}/words.csv", "words.csv row 2: x and y must be numbers"),
+    ("track", "{d}/good --out {out} --points {d}/missing.csv", "missing.csv does not exist"),
+    ("track", "{d}/good --out {out} --window 0", "argument --window: must be an odd integer >= 3; got 0"),
+    ("track", "{d}/good --out {out} --window -3", "argument --window"),
+    ("track", "{d}/good --out {out} --window 4", "argument --window"),
+    ("track", "{d}/good --out {out} --window 301", "smaller than the 301-pixel window"),
+    ("track", "{d}/good --out {out} --gate 0", "argument --gate: must be in (0, 1)"),
+    ("track", "{d}/good --out {out} --gate -0.5", "argument --gate"),
+    ("track", "{d}/good --out {out} --gate nan", "argument --gate"),
+    ("track", "{d}/good --out {out} --gate-radius 0", "argument --gate-radius: must be > 0"),
+    ("track", "{d}/good --out {out} --gate-radius -1", "argument --gate-radius"),
+    ("track", "{d}/good --out {out} --gate-radius inf", "gate_radius must be a positive number"),
+    ("track", "{d}/good --out {out} --max-misses -1", "argument --max-misses: must be >= 0"),
+    ("track", "{d}/good --out {out} --max-features 0", "--max-features must be >= 1"),
+    ("track", "{d}/good --out {out} --score sad", "argument --score: invalid choice"),
+    ("track", "{d}/good --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
+    ("track", "{d}/good --out {d}/a_file.txt", "a_file.txt exists and is not a folder"),
+    # --- demo --------------------------------------------------------------------------------
+    ("demo", "--out {out} --frames 1", "n_frames must be an integer >= 3; got 1"),
+    ("demo", "--out {out} --frames 0", "n_frames"),
+    ("demo", "--out {out} --frames -3", "n_frames"),
+    ("demo", "--out {out} --seed -1", "seed must be a non-negative integer; got -1"),
+    ("demo", "--out {out} --input {d}/missing", "missing does not exist"),
+    ("demo", "--out {out} --input {d}/empty", "empty holds no image files"),
+    ("demo", "--out {out} --input {d}/text_as_png", "text_as_png/f0.png is not a readable image"),
+    ("demo", "--out {out} --input {d}/truncated", "truncated/f1.png is not a readable image"),
+    ("demo", "--out {out} --input {d}/broken.mp4", "broken.mp4 is not a decodable video"),
+    ("demo", "--out {out} --input {d}/sizes", "sizes/f2.png is 150×100"),
+    ("demo", "--out {out} --input {d}/one_frame", "one_frame holds 1 image(s)"),
+    ("demo", "--out " + NOT_WRITABLE + " --frames 3", "a_file.txt/sub is not writable"),
+    # --- reconstruct -------------------------------------------------------------------------
+    ("reconstruct", "{d}/missing.csv --out {out}", "missing.csv: no such file"),
+    ("reconstruct", "{d}/empty --out {out}", "empty: no such file"),
+    ("reconstruct", "{d}/tracks_no_y.csv --out {out}", "tracks_no_y.csv: line 1: header lacks column(s) y"),
+    ("reconstruct", "{d}/tracks_nan.csv --out {out}", "tracks_nan.csv: line 3: y must be finite; got 'nan'"),
+    ("reconstruct", "{d}/tracks_inf.csv --out {out}", "tracks_inf.csv: line 3: x must be finite; got 'inf'"),
+    ("reconstruct", "{d}/tracks_words.csv --out {out}", "tracks_words.csv: line 2: frame must be an integer"),
+    ("reconstruct", "{d}/tracks_ragged.csv --out {out}", "tracks_ragged.csv: line 3: 3 fields, header has 4"),
+    ("reconstruct", "{d}/binary.csv --out {out}", "binary.csv: not a text CSV file"),
+    ("reconstruct", "{d}/positions_3.npz --out {out}", "positions_3.npz: positions must be a numeric (frames, points, 2)"),
+    ("reconstruct", "{d}/status_shape.npz --out {out}", "status_shape.npz: status must be an integer (4, 5) array"),
+    ("reconstruct", "{d}/no_ids.npz --out {out}", "no_ids.npz: missing array(s) track_ids"),
+    ("reconstruct", "{d}/text.npz --out {out}", "text.npz: not a readable NPZ file"),
+    ("reconstruct", "{d}/too_few.csv --out {out}", "factorize needs >= 3 frames and >= 4 points"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations 0", "--max-iterations must be >= 1"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations -5", "--max-iterations must be >= 1"),
+    ("reconstruct", "{d}/tracks_ok.csv --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
+    # --- report (its output folder is the run folder itself) ----------------------------------
+    ("report", "{d}/missing", "missing does not exist or is not a folder"),
+    ("report", "{d}/empty", "empty/summary.json: not found"),
+    ("report", "{d}/a_file.txt", "a_file.txt does not exist or is not a folder"),
+    ("report", "{d}/run_bad_json", "run_bad_json/summary.json: is not valid JSON"),
+    ("report", "{d}/run_bad_npz", "run_bad_npz/tracks.npz: positions must have shape (frames, points, 2)"),
+    ("report", "{d}/run_bad_structure", "run_bad_structure/structure.csv, line 2: column 'Y' must be a number"),
+    ("report", "{d}/run_bad_json --name ../escape.html", "out_name must be a plain file name"),
+    # --- batch -------------------------------------------------------------------------------
+    ("batch", "{d}/missing --out {out}", "sequence '{d}/missing' does not exist"),
+    ("batch", "scene:1 scene:x --out {out}", "sequence 'scene:x': the built-in scene is named scene:SEED"),
+    ("batch", "scene:1 {d}/empty --out {out}", "empty holds no image files"),
+    ("batch", "scene:1 {d}/one_frame --out {out}", "one_frame holds 1 image(s)"),
+    ("batch", "scene:1 --out {out} --workers 0", "--workers must be >= 1; got 0"),
+    ("batch", "scene:1 --out {out} --workers -2", "--workers must be >= 1"),
+    ("batch", "scene:1 --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
+    # --- tables ------------------------------------------------------------------------------
+    ("tables", "--task 0", "unknown task 0; tasks 1-6"),
+    ("tables", "--task 8", "unknown task 8"),
+    ("tables", "--task -1", "unknown task -1"),
+    ("tables", "--task two", "argument --task: invalid int value"),
+    ("tables", "--task 7 --pixel-noise 0", "pixel_noise_std must be finite and > 0"),
+    ("tables", "--task 7 --pixel-noise -1", "pixel_noise_std must be finite and > 0"),
+    ("tables", "--task 7 --focal 0", "focal must be finite and > 0"),
+    ("tables", "--task 7 --focal inf", "focal must be finite and > 0"),
+    ("tables", "--task 7 --seed -1", "seed must be a non-negative integer"),
+    # --- consistency -------------------------------------------------------------------------
+    ("consistency", "--task 3", "argument --task: invalid choice: 3"),
+    ("consistency", "--task 2 --runs 0", "runs must be an integer >= 2; got 0"),
+    ("consistency", "--task 2 --runs -1", "runs must be an integer >= 2"),
+    ("consistency", "--task 2 --method pairs", "--method applies to --task 7 only"),
+    ("consistency", "--task 7 --runs 3 --pixel-noise -1", "pixel_noise_std must be finite and > 0"),
+    ("consistency", "--task 7 --runs 3 --pixel-noise 0", "pixel_noise_std must be finite and > 0"),
+    ("consistency", "--task 7 --runs 3 --focal nan", "focal must be finite and > 0"),
+    # --- scene -------------------------------------------------------------------------------
+    ("scene", "--out {out} --frames 1", "n_frames must be an integer >= 3; got 1"),
+    ("scene", "--out {out} --size 0x10", "--size must be positive; got 0x10"),
+    ("scene", "--out {out} --size big", "argument --size: expected WIDTHxHEIGHT"),
+    ("scene", "--out {out} --noise -1", "pixel_noise_std must be a finite number >= 0; got -1.0"),
+    ("scene", "--out {out} --noise nan", "pixel_noise_std must be a finite number >= 0"),
+    ("scene", "--out {out} --seed -1", "seed must be a non-negative integer"),
+    ("scene", "--out {out} --occluder 99,1,1", "occluder.track_id must be in 0 … 9; got 99"),
+    ("scene", "--out {out} --occluder 2,-1,0", "occluder must hide frames within 0 … 29"),
+    ("scene", "--out {out} --occluder-marker", "--occluder-marker needs --occluder"),
+    ("scene", "--out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
+]
+
+
+def _params():
+    for command, arguments, fragment in CASES:
+        name = f"{command} {arguments}".replace("{d}/", "").replace("{out}", "OUT")
+        variants = ["new", "existing"] if "{out}" in arguments else ["none"]
+        for variant in variants:
+            yield pytest.param(command, arguments, fragment, variant, id=f"{name} [{variant}]")
+
+
+def _png(image: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".png", image)
+    assert ok
+    return data.tobytes()
+
+
+@pytest.fixture(scope="module")
+def bad_inputs(tmp_path_factory) -> Path:
+    """A folder holding one example of every kind of bad input (and a few good ones)."""
+    d = tmp_path_factory.mktemp("bad_inputs")
+    scene = render_scene(n_frames=5, image_size=(160, 120))
+    frames = [_png(f) for f in scene.frames]
+
+    def folder(name: str, files: dict[str, bytes]) -> None:
+        (d / name).mkdir()
+        for file, data in files.items():
+            (d / name / file).write_bytes(data)
+
+    folder("good", {f"f{k}.png": png for k, png in enumerate(frames)})
+    folder("empty", {})
+    folder("text_as_png", {f"f{k}.png": b"this is text, not a picture\n" for k in range(3)})
+    folder("truncated", {"f0.png": frames[0], "f1.png": frames[1][: len(frames[1]) // 2], "f2.png": frames[2]})
+    folder("sizes", {"f0.png": frames[0], "f1.png": frames[1], "f2.png": _png(scene.frames[2][:100, :150])})
+    folder("one_frame", {"f0.png": frames[0]})
+    (d / "broken.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(300))
+    (d / "a_file.txt").write_text("a regular file, so nothing can be created below it\n")
+
+    (d / "outside.csv").write_text("x,y\n10,10\n500,20\n")
+    (d / "no_y.csv").write_text("x,z\n1,2\n")
+    (d / "nan.csv").write_text("x,y\n10,nan\n")
+    (d / "inf.csv").write_text("x,y\n10,inf\n")
+    (d / "words.csv").write_text("x,y\n10,abc\n")
+
+    rng = np.random.default_rng(0)
+    ok_rows = [f"{f},{p},{x:.3f},{y:.3f}" for f in range(4) for p in range(6) for x, y in [rng.uniform(0, 100, 2)]]
+    (d / "tracks_ok.csv").write_text("frame,track_id,x,y\n" + "\n".join(ok_rows) + "\n")
+    (d / "tracks_no_y.csv").write_text("frame,track_id,x\n0,1,2\n")
+    (d / "tracks_nan.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,2,nan\n")
+    (d / "tracks_inf.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,inf,3\n")
+    (d / "tracks_words.csv").write_text("frame,track_id,x,y\nfirst,1,2,3\n")
+    (d / "tracks_ragged.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,2\n")
+    (d / "too_few.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,2,3\n")
+    (d / "binary.csv").write_bytes(bytes(range(256)))
+    np.savez(d / "positions_3.npz", positions=np.zeros((4, 5, 3)), status=np.ones((4, 5), np.int8), track_ids=np.arange(5))
+    np.savez(d / "status_shape.npz", positions=np.zeros((4, 5, 2)), status=np.ones((4, 4), np.int8), track_ids=np.arange(5))
+    np.savez(d / "no_ids.npz", positions=np.zeros((4, 5, 2)), status=np.ones((4, 5), np.int8))
+    (d / "text.npz").write_text("not a zip archive\n")
+
+    summary = json.dumps({"command": "track", "kalmansfm_version": "0"}) + "\n"
+    folder("run_bad_json", {"summary.json": b"{ not json"})
+    folder("run_bad_npz", {"summary.json": summary.encode()})
+    np.savez(d / "run_bad_npz" / "tracks.npz", positions=np.zeros((3, 4, 3)), status=np.zeros((3, 4), np.int8),
+             track_ids=np.arange(4))
+    folder("run_bad_structure", {"summary.json": summary.encode(), "structure.csv": b"track_id,X,Y,Z\n1,2,abc,4\n"})
+    return d
+
+
+def _snapshot(root: Path) -> dict[str, bytes]:
+    """Every file below ``root`` with its bytes (empty when ``root`` does not exist)."""
+    if not root.exists():
+        return {}
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _argv(command: str, arguments: str, d: Path, out: Path) -> list[str]:
+    return [command, *arguments.format(d=d, out=out).split(), "--quiet"]
+
+
+def _run(argv: list[str]) -> int:
+    try:
+        return main(argv)
+    except SystemExit as exc:  # argparse refuses a usage error by exiting
+        return int(exc.code)
+
+
+@pytest.mark.parametrize("command, arguments, fragment, variant", list(_params()))
+def test_bad_input_is_refused_in_one_line_and_nothing_is_written(
+    command, arguments, fragment, variant, bad_inputs, tmp_path, capsys
+):
+    out = tmp_path / "out"
+    if variant == "existing":
+        out.mkdir()
+        (out / "summary.json").write_text('{"earlier": "run"}\n')
+        (out / "tracks.csv").write_text("frame,track_id,x,y\n0,1,2,3\n")
+    before_out, before_inputs = _snapshot(out), _snapshot(bad_inputs)
+
+    code = _run(_argv(command, arguments, bad_inputs, out))
+
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert code == 2, captured.err
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"kalmansfm {command}: error: "), lines[0]
+    assert fragment.format(d=bad_inputs) in lines[0]
+    assert "Traceback" not in captured.err
+    assert captured.out == ""
+    assert _snapshot(out) == before_out
+    assert out.exists() == (variant == "existing")
+    assert _snapshot(bad_inputs) == before_inputs
+    assert not [p for p in bad_inputs.rglob("*.tmp")]
+
+
+@pytest.mark.parametrize(
+    "arguments, fragment",
+    [
+        ("track {d}/truncated --out {out} --quiet", "truncated/f1.png is not a readable image"),
+        ("track {d}/broken.mp4 --out {out} --quiet", "broken.mp4 is not a decodable video"),
+        ("reconstruct {d}/tracks_nan.csv --out {out} --quiet", "line 3: y must be finite"),
+        ("batch scene:1 --out {out} --workers 0 --quiet", "--workers must be >= 1"),
+        ("track {d}/good --out {out} --window 4", "argument --window"),
+    ],
+)
+def test_a_real_process_prints_one_line_and_no_native_warnings(arguments, fragment, bad_inputs, tmp_path):
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    env.pop("OPENCV_FFMPEG_LOGLEVEL", None)
+    result = subprocess.run(
+        [sys.executable, "-m", "kalmansfm", *arguments.format(d=bad_inputs, out=out).split()],
+        capture_output=True, text=True, env=env, timeout=120,
+    )
+    assert result.returncode == 2, result.stderr
+    assert len(result.stderr.splitlines()) == 1, result.stderr
+    assert fragment in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not out.exists()
+
+
+def test_with_a_progress_bar_the_error_is_still_the_last_line_and_no_traceback(bad_inputs, tmp_path):
+    out = tmp_path / "out"
+    result = subprocess.run(
+        [sys.executable, "-m", "kalmansfm", "track", str(bad_inputs / "truncated"), "--out", str(out)],
+        capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(SRC)}, timeout=120,
+    )
+    assert result.returncode == 2
+    # tqdm's bar (leave=False) is erased on a terminal; what stays is the error line
+    assert result.stderr.rstrip("\n").splitlines()[-1].startswith("kalmansfm track: error: ")
+    assert "Traceback" not in result.stderr and "WARN" not in result.stderr
+    assert not out.exists()
