@@ -168,9 +168,8 @@ def factorize(
     >>> bool(np.allclose(rows, np.eye(2)))
     True
     """
-    x, w = _validate(positions, weights)
+    x, w, observed = _validate(positions, weights)
     frames, points = x.shape[:2]
-    observed = ~np.isnan(x).any(axis=2)
     if w is not None:
         observed &= (w > 0).any(axis=2)
     notes: list[str] = []
@@ -231,13 +230,7 @@ def factorize(
     full_translation[f_index] = translation[f_ok]
     full_points[p_index] = shape[p_ok]
 
-    # Reprojection M_f S_p + t_f as one batched matmul, (F, 2, 3) @ (3, P) -> (F, 2, P).
-    predicted = np.matmul(full_motion, full_points.T) + full_translation[:, :, None]
-    difference = predicted.transpose(0, 2, 1) - x
-    residuals = np.sqrt(np.einsum("fpc,fpc->fp", difference, difference))
-    used = observed & ~np.isnan(residuals)
-    residuals[~used] = np.nan
-    residual_rms = float(np.sqrt(np.mean(residuals[used] ** 2)))
+    residuals, used, residual_rms = _reprojection_residuals(x, observed, full_motion, full_points, full_translation)
     return Reconstruction(
         points=full_points,
         motion=full_motion,
@@ -319,21 +312,28 @@ def _quadratic_terms(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
-def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray | None]:
+def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     try:
         x = np.asarray(positions, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"positions must be numeric; could not convert them ({exc})") from None
     if x.ndim != 3 or x.shape[2] != 2:
         raise InvalidInputError(f"positions must have shape (frames, points, 2); got {x.shape}")
-    if np.isinf(x).any():
-        bad = tuple(int(i) for i in np.argwhere(np.isinf(x))[0])
-        raise InvalidInputError(f"positions must be finite or NaN (missing); entry {bad} is {x[bad]}")
     frames, points = x.shape[:2]
+    # Observed = both coordinates finite; checked a block of frames at a time so that no
+    # full-size temporary is made (positions can be gigabytes).
+    observed = np.empty((frames, points), bool)
+    for block in _frame_blocks(frames, points):
+        chunk = x[block]
+        np.logical_and(np.isfinite(chunk[..., 0]), np.isfinite(chunk[..., 1]), out=observed[block])
+        if not observed[block].all() and np.isinf(chunk).any():
+            bad = tuple(int(i) for i in np.argwhere(np.isinf(chunk))[0])
+            bad = (bad[0] + block.start, *bad[1:])
+            raise InvalidInputError(f"positions must be finite or NaN (missing); entry {bad} is {x[bad]}")
     if frames < 3 or points < 4:
         raise NotEnoughDataError(f"factorize needs >= 3 frames and >= 4 points; got {frames} frames, {points} points")
     if weights is None:
-        return x, None
+        return x, None, observed
     try:
         w = np.asarray(weights, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -347,13 +347,21 @@ def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarra
     if bad.any():
         where = tuple(int(i) for i in np.argwhere(bad)[0])
         raise InvalidInputError(f"weights must be finite and >= 0 where positions are observed; entry {where} is {w[where]}")
-    return x, np.where(finite_obs, w, 0.0)
+    return x, np.where(finite_obs, w, 0.0), observed
+
+
+def _frame_blocks(frames: int, points: int, entries: int = 1 << 18) -> list[slice]:
+    """Slices of consecutive frames holding about ``entries`` points each (cache-sized work)."""
+    step = max(1, entries // max(points, 1))
+    return [slice(start, min(start + step, frames)) for start in range(0, frames, step)]
 
 
 def _usable(observed: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Drop points seen in < 2 frames and frames seeing < 4 points, until stable."""
     use_f = np.ones(observed.shape[0], bool)
     use_p = np.ones(observed.shape[1], bool)
+    if observed.all():  # the shape was checked: >= 3 frames, >= 4 points
+        return use_f, use_p
     while True:
         sub = observed & use_f[:, None] & use_p[None, :]
         new_p = use_p & (sub.sum(axis=0) >= 2)
@@ -378,15 +386,31 @@ def _usable(observed: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndar
 def _closed_form(x: np.ndarray, rng: object) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Report eqs. 14–24: centre, rank-3 SVD, R* = U′D′^½, S* = D′^½V′ᵀ."""
     frames, points = x.shape[:2]
-    w = np.ascontiguousarray(x.transpose(0, 2, 1)).reshape(2 * frames, points)  # rows x_f, y_f
-    centroids = w.mean(axis=1)
+    w, centroids = _centred_measurement_matrix(x)
     method = "lapack" if w.size <= _LAPACK_LIMIT else "randomized"
-    svd = truncated_svd(w, 3, row_offsets=centroids, method=method, rng=rng)
+    svd = truncated_svd(w, 3, method=method, rng=rng)
     root = np.sqrt(svd.s)
     motion = (svd.u * root).reshape(frames, 2, 3)
     shape = (svd.vt.T * root)
     sv = np.concatenate([svd.s, svd.extra_singular_values])
     return motion, shape, centroids.reshape(frames, 2), sv
+
+
+def _centred_measurement_matrix(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """W (2F × P, C order; row 2f is x of frame f, row 2f+1 its y) centred on each row's mean.
+
+    Built a block of frames at a time: the (F, P, 2) → (2F, P) transpose and the centring
+    of a block happen while it is in cache, and W is the only full-size array made.
+    """
+    frames, points = x.shape[:2]
+    w = np.empty((frames, 2, points))
+    centroids = np.empty((frames, 2))
+    for block in _frame_blocks(frames, points):
+        rows = w[block]
+        np.copyto(rows, x[block].transpose(0, 2, 1))
+        centroids[block] = rows.mean(axis=2)
+        rows -= centroids[block, :, None]
+    return w.reshape(2 * frames, points), centroids.reshape(-1)
 
 
 def _weighted_als(
@@ -506,6 +530,44 @@ def _initialise(values: np.ndarray, observed: np.ndarray):
         if not new_p.any() and not new_f.any():
             break
     return motion, shape, translation, f_ok, p_ok
+
+
+def _reprojection_residuals(
+    x: np.ndarray, observed: np.ndarray, motion: np.ndarray, points: np.ndarray, translation: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Distances |M_f S_p + t_f − x_fp| (F, P), NaN where unused; the mask of used entries; their RMS.
+
+    Computed a block of frames at a time, so no (F, P, 2) temporary is made.
+    """
+    frames, n_points = observed.shape
+    residuals = np.empty((frames, n_points))
+    used = np.empty((frames, n_points), bool)
+    total, count = 0.0, 0
+    points_t = np.ascontiguousarray(points.T)
+    for block in _frame_blocks(frames, n_points):
+        # predicted rows M_f S + t_f of the block, (B, 2, P), as three broadcast multiply-adds: many
+        # tiny GEMMs would each wake the BLAS threads, which costs more than the arithmetic
+        rows = motion[block][:, :, :, None]
+        difference = rows[:, :, 0] * points_t[0]
+        difference += rows[:, :, 1] * points_t[1]
+        difference += rows[:, :, 2] * points_t[2]
+        difference += translation[block, :, None]
+        difference -= x[block].transpose(0, 2, 1)
+        np.square(difference, out=difference)
+        squared = np.add(difference[:, 0], difference[:, 1], out=residuals[block])
+        block_total = float(squared.sum())
+        if np.isfinite(block_total) and observed[block].all():  # the usual case: nothing to mask
+            used[block] = True
+            total += block_total
+            count += squared.size
+        else:
+            ok = observed[block] & np.isfinite(squared)
+            used[block] = ok
+            total += float(np.sum(squared, where=ok))
+            count += int(ok.sum())
+            squared[~ok] = np.nan
+        np.sqrt(squared, out=squared)
+    return residuals, used, float(np.sqrt(total / count)) if count else float("nan")
 
 
 def _complete_block(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
