@@ -612,7 +612,13 @@ def _completed_singular_values(x, observed, motion, shape, translation, f_ok, p_
 
 
 def _check_rank(sv: np.ndarray, motion: np.ndarray, shape: np.ndarray, notes: list[str]) -> None:
-    """Flag a W that is not clearly rank 3 and say whether the shape or the motion is to blame."""
+    """Flag a W that is not clearly rank 3, reporting what was measured.
+
+    The warning gives σ3/σ4 and σ3/σ1; it adds "no rotation out of the image plane" only
+    when that is measured (every frame's rank-2 part a 2D similarity of frame 0's). Other
+    causes — nearly planar points, little rotation, tracks that follow no single rigid
+    motion (tracker failures) — cannot be told apart from W alone and are not guessed.
+    """
     fourth = sv[3] if sv.size > 3 else 0.0
     if not (sv[2] <= 1e-9 * sv[0] or sv[2] < _RANK_GAP * fourth):
         return
@@ -625,18 +631,25 @@ def _check_rank(sv: np.ndarray, motion: np.ndarray, shape: np.ndarray, notes: li
     relative = blocks @ np.linalg.pinv(blocks[0])
     deviation = np.abs(relative[:, 0, 0] - relative[:, 1, 1]) + np.abs(relative[:, 0, 1] + relative[:, 1, 0])
     size = np.linalg.norm(relative, axis=(1, 2))
-    cause = (
-        "no rotation out of the image plane (every frame is a 2D similarity of the first)"
-        if np.all(deviation <= 0.02 * size)
-        else "the points are (nearly) coplanar"
+    worst = float(np.max(deviation / np.maximum(size, np.finfo(float).tiny)))
+    ratio = f"σ3/σ4 = {sv[2] / fourth:.3g}" if fourth > 0 else "σ4 = 0"
+    measured = (
+        f"W is not clearly rank 3 ({ratio}, σ3/σ1 = {sv[2] / sv[0]:.3g}; singular values "
+        f"{np.array2string(sv[:4], precision=4)}): depth is not determined"
     )
-    notes.append(
-        f"W is not clearly rank 3 (singular values {np.array2string(sv[:4], precision=4)}): "
-        f"{cause}; depth is not determined"
-    )
+    if worst <= 0.02:
+        # Measured, not guessed: the rank-2 part of every frame is a 2D similarity of frame 0's.
+        measured += (
+            f"; every frame is a 2D similarity of the first (largest deviation {worst:.2%}): "
+            "no rotation out of the image plane"
+        )
+    notes.append(measured)
 
 
 def _check_shape(shape: np.ndarray, notes: list[str]) -> None:
     spread = np.linalg.svd(shape - shape.mean(axis=0), compute_uv=False)
     if spread[0] > 0 and spread[-1] < _FLAT_RATIO * spread[0]:
-        notes.append(f"the recovered points are (nearly) coplanar (thickness/extent {spread[-1] / spread[0]:.2g})")
+        notes.append(
+            "the recovered points are (nearly) coplanar: smallest/largest spread of the shape "
+            f"{spread[-1] / spread[0]:.2g} (< {_FLAT_RATIO:g})"
+        )
