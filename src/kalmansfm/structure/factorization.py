@@ -601,13 +601,17 @@ def _complete_block(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _completed_singular_values(x, observed, motion, shape, translation, f_ok, p_ok, rng) -> np.ndarray:
     """Singular values of the centred W with holes filled by the model (known frames and points)."""
-    xs = x[np.ix_(f_ok, p_ok)]
-    model = np.einsum("fij,pj->fpi", motion[f_ok], shape[p_ok]) + translation[f_ok][:, None, :]
-    filled = np.where(observed[np.ix_(f_ok, p_ok)][:, :, None], xs, model)
-    w = np.ascontiguousarray(filled.transpose(0, 2, 1)).reshape(-1, filled.shape[1])
+    everything = bool(f_ok.all() and p_ok.all())
+    xs = x if everything else x[np.ix_(f_ok, p_ok)]
+    seen = observed if everything else observed[np.ix_(f_ok, p_ok)]
+    frames, points = seen.shape
+    # The model's W (2F × P) = M Sᵀ + t as one GEMM, then the observed entries copied over it.
+    w = motion[f_ok].reshape(-1, 3) @ shape[p_ok].T + translation[f_ok].reshape(-1, 1)
+    np.copyto(w.reshape(frames, 2, points), xs.transpose(0, 2, 1), where=seen[:, None, :])
+    w -= w.mean(axis=1, keepdims=True)
     k = min(3, *w.shape)
     method = "lapack" if w.size <= _LAPACK_LIMIT else "randomized"
-    svd = truncated_svd(w, k, row_offsets=w.mean(axis=1), method=method, rng=rng)
+    svd = truncated_svd(w, k, method=method, rng=rng)
     return np.concatenate([svd.s, svd.extra_singular_values])
 
 
