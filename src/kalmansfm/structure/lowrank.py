@@ -178,8 +178,8 @@ def _randomized(
         return TruncatedSVD(np.eye(m, k), zeros, np.eye(k, n), np.zeros(width - k), "randomized", 0, 0.0)
     # Length-squared sampling of the starting rows (a pinch of uniform keeps every row possible).
     probability = row_norms + 1e-3 * frobenius / m
-    rows = rng.choice(m, size=width, replace=False, p=probability / probability.sum())
-    zt = w[np.sort(rows)] - offsets[np.sort(rows), None]  # = (W - c 1ᵀ)ᵀ e_rows, no product needed
+    rows = np.sort(rng.choice(m, size=width, replace=False, p=probability / probability.sum()))
+    zt = w[rows] - offsets[rows, None]  # = (W - c 1ᵀ)ᵀ e_rows, no product needed
     u, _ = np.linalg.qr(times(zt))
     passes = 1
     while True:
@@ -197,7 +197,9 @@ def _randomized(
         next_lam = upper_next if certified else (lam[k] if width > k else 0.0)
         gap = lam[k - 1] - next_lam
         bound = float(np.pi / 2) if gap <= 0 else float(np.arcsin(min(1.0, residual / gap)))
-        if bound <= tol or passes + 2 > max_passes:
+        # σₖ at rounding level: the k-th direction is not determined by the matrix; iterating cannot help.
+        undetermined = lam[k - 1] <= (64 * np.finfo(float).eps) ** 2 * lam[0]
+        if bound <= tol or undetermined or passes + 2 > max_passes:
             break
         u, _ = np.linalg.qr(y)
     # The returned triplets from the SVD of Zᵀ = Uᵀ W = G Σ Bᵀ (no squaring): Wᵀ (U G) = B Σ.
