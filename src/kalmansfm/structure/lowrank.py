@@ -95,7 +95,7 @@ def truncated_svd(
     rank: int = 3,
     *,
     row_offsets: np.ndarray | None = None,
-    oversampling: int = 2,
+    oversampling: int = 1,
     tol: float = 1e-9,
     max_passes: int = 21,
     method: str = "auto",
