@@ -168,9 +168,8 @@ def factorize(
     >>> bool(np.allclose(rows, np.eye(2)))
     True
     """
-    x, w = _validate(positions, weights)
+    x, w, observed = _validate(positions, weights)
     frames, points = x.shape[:2]
-    observed = ~np.isnan(x).any(axis=2)
     if w is not None:
         observed &= (w > 0).any(axis=2)
     notes: list[str] = []
@@ -231,13 +230,7 @@ def factorize(
     full_translation[f_index] = translation[f_ok]
     full_points[p_index] = shape[p_ok]
 
-    # Reprojection M_f S_p + t_f as one batched matmul, (F, 2, 3) @ (3, P) -> (F, 2, P).
-    predicted = np.matmul(full_motion, full_points.T) + full_translation[:, :, None]
-    difference = predicted.transpose(0, 2, 1) - x
-    residuals = np.sqrt(np.einsum("fpc,fpc->fp", difference, difference))
-    used = observed & ~np.isnan(residuals)
-    residuals[~used] = np.nan
-    residual_rms = float(np.sqrt(np.mean(residuals[used] ** 2)))
+    residuals, used, residual_rms = _reprojection_residuals(x, observed, full_motion, full_points, full_translation)
     return Reconstruction(
         points=full_points,
         motion=full_motion,
@@ -319,21 +312,28 @@ def _quadratic_terms(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
-def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray | None]:
+def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     try:
         x = np.asarray(positions, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"positions must be numeric; could not convert them ({exc})") from None
     if x.ndim != 3 or x.shape[2] != 2:
         raise InvalidInputError(f"positions must have shape (frames, points, 2); got {x.shape}")
-    if np.isinf(x).any():
-        bad = tuple(int(i) for i in np.argwhere(np.isinf(x))[0])
-        raise InvalidInputError(f"positions must be finite or NaN (missing); entry {bad} is {x[bad]}")
     frames, points = x.shape[:2]
+    # Observed = both coordinates finite; checked a block of frames at a time so that no
+    # full-size temporary is made (positions can be gigabytes).
+    observed = np.empty((frames, points), bool)
+    for block in _frame_blocks(frames, points):
+        chunk = x[block]
+        np.logical_and(np.isfinite(chunk[..., 0]), np.isfinite(chunk[..., 1]), out=observed[block])
+        if not observed[block].all() and np.isinf(chunk).any():
+            bad = tuple(int(i) for i in np.argwhere(np.isinf(chunk))[0])
+            bad = (bad[0] + block.start, *bad[1:])
+            raise InvalidInputError(f"positions must be finite or NaN (missing); entry {bad} is {x[bad]}")
     if frames < 3 or points < 4:
         raise NotEnoughDataError(f"factorize needs >= 3 frames and >= 4 points; got {frames} frames, {points} points")
     if weights is None:
-        return x, None
+        return x, None, observed
     try:
         w = np.asarray(weights, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -347,13 +347,21 @@ def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarra
     if bad.any():
         where = tuple(int(i) for i in np.argwhere(bad)[0])
         raise InvalidInputError(f"weights must be finite and >= 0 where positions are observed; entry {where} is {w[where]}")
-    return x, np.where(finite_obs, w, 0.0)
+    return x, np.where(finite_obs, w, 0.0), observed
+
+
+def _frame_blocks(frames: int, points: int, entries: int = 1 << 18) -> list[slice]:
+    """Slices of consecutive frames holding about ``entries`` points each (cache-sized work)."""
+    step = max(1, entries // max(points, 1))
+    return [slice(start, min(start + step, frames)) for start in range(0, frames, step)]
 
 
 def _usable(observed: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Drop points seen in < 2 frames and frames seeing < 4 points, until stable."""
     use_f = np.ones(observed.shape[0], bool)
     use_p = np.ones(observed.shape[1], bool)
+    if observed.all():  # the shape was checked: >= 3 frames, >= 4 points
+        return use_f, use_p
     while True:
         sub = observed & use_f[:, None] & use_p[None, :]
         new_p = use_p & (sub.sum(axis=0) >= 2)
@@ -378,15 +386,31 @@ def _usable(observed: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndar
 def _closed_form(x: np.ndarray, rng: object) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Report eqs. 14–24: centre, rank-3 SVD, R* = U′D′^½, S* = D′^½V′ᵀ."""
     frames, points = x.shape[:2]
-    w = np.ascontiguousarray(x.transpose(0, 2, 1)).reshape(2 * frames, points)  # rows x_f, y_f
-    centroids = w.mean(axis=1)
+    w, centroids = _centred_measurement_matrix(x)
     method = "lapack" if w.size <= _LAPACK_LIMIT else "randomized"
-    svd = truncated_svd(w, 3, row_offsets=centroids, method=method, rng=rng)
+    svd = truncated_svd(w, 3, method=method, rng=rng)
     root = np.sqrt(svd.s)
     motion = (svd.u * root).reshape(frames, 2, 3)
     shape = (svd.vt.T * root)
     sv = np.concatenate([svd.s, svd.extra_singular_values])
     return motion, shape, centroids.reshape(frames, 2), sv
+
+
+def _centred_measurement_matrix(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """W (2F × P, C order; row 2f is x of frame f, row 2f+1 its y) centred on each row's mean.
+
+    Built a block of frames at a time: the (F, P, 2) → (2F, P) transpose and the centring
+    of a block happen while it is in cache, and W is the only full-size array made.
+    """
+    frames, points = x.shape[:2]
+    w = np.empty((frames, 2, points))
+    centroids = np.empty((frames, 2))
+    for block in _frame_blocks(frames, points):
+        rows = w[block]
+        np.copyto(rows, x[block].transpose(0, 2, 1))
+        centroids[block] = rows.mean(axis=2)
+        rows -= centroids[block, :, None]
+    return w.reshape(2 * frames, points), centroids.reshape(-1)
 
 
 def _weighted_als(
@@ -508,6 +532,44 @@ def _initialise(values: np.ndarray, observed: np.ndarray):
     return motion, shape, translation, f_ok, p_ok
 
 
+def _reprojection_residuals(
+    x: np.ndarray, observed: np.ndarray, motion: np.ndarray, points: np.ndarray, translation: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Distances |M_f S_p + t_f − x_fp| (F, P), NaN where unused; the mask of used entries; their RMS.
+
+    Computed a block of frames at a time, so no (F, P, 2) temporary is made.
+    """
+    frames, n_points = observed.shape
+    residuals = np.empty((frames, n_points))
+    used = np.empty((frames, n_points), bool)
+    total, count = 0.0, 0
+    points_t = np.ascontiguousarray(points.T)
+    for block in _frame_blocks(frames, n_points):
+        # predicted rows M_f S + t_f of the block, (B, 2, P), as three broadcast multiply-adds: many
+        # tiny GEMMs would each wake the BLAS threads, which costs more than the arithmetic
+        rows = motion[block][:, :, :, None]
+        difference = rows[:, :, 0] * points_t[0]
+        difference += rows[:, :, 1] * points_t[1]
+        difference += rows[:, :, 2] * points_t[2]
+        difference += translation[block, :, None]
+        difference -= x[block].transpose(0, 2, 1)
+        np.square(difference, out=difference)
+        squared = np.add(difference[:, 0], difference[:, 1], out=residuals[block])
+        block_total = float(squared.sum())
+        if np.isfinite(block_total) and observed[block].all():  # the usual case: nothing to mask
+            used[block] = True
+            total += block_total
+            count += squared.size
+        else:
+            ok = observed[block] & np.isfinite(squared)
+            used[block] = ok
+            total += float(np.sum(squared, where=ok))
+            count += int(ok.sum())
+            squared[~ok] = np.nan
+        np.sqrt(squared, out=squared)
+    return residuals, used, float(np.sqrt(total / count)) if count else float("nan")
+
+
 def _complete_block(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Greedy search for a large all-observed block of frames × points.
 
@@ -539,18 +601,28 @@ def _complete_block(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _completed_singular_values(x, observed, motion, shape, translation, f_ok, p_ok, rng) -> np.ndarray:
     """Singular values of the centred W with holes filled by the model (known frames and points)."""
-    xs = x[np.ix_(f_ok, p_ok)]
-    model = np.einsum("fij,pj->fpi", motion[f_ok], shape[p_ok]) + translation[f_ok][:, None, :]
-    filled = np.where(observed[np.ix_(f_ok, p_ok)][:, :, None], xs, model)
-    w = np.ascontiguousarray(filled.transpose(0, 2, 1)).reshape(-1, filled.shape[1])
+    everything = bool(f_ok.all() and p_ok.all())
+    xs = x if everything else x[np.ix_(f_ok, p_ok)]
+    seen = observed if everything else observed[np.ix_(f_ok, p_ok)]
+    frames, points = seen.shape
+    # The model's W (2F × P) = M Sᵀ + t as one GEMM, then the observed entries copied over it.
+    w = motion[f_ok].reshape(-1, 3) @ shape[p_ok].T + translation[f_ok].reshape(-1, 1)
+    np.copyto(w.reshape(frames, 2, points), xs.transpose(0, 2, 1), where=seen[:, None, :])
+    w -= w.mean(axis=1, keepdims=True)
     k = min(3, *w.shape)
     method = "lapack" if w.size <= _LAPACK_LIMIT else "randomized"
-    svd = truncated_svd(w, k, row_offsets=w.mean(axis=1), method=method, rng=rng)
+    svd = truncated_svd(w, k, method=method, rng=rng)
     return np.concatenate([svd.s, svd.extra_singular_values])
 
 
 def _check_rank(sv: np.ndarray, motion: np.ndarray, shape: np.ndarray, notes: list[str]) -> None:
-    """Flag a W that is not clearly rank 3 and say whether the shape or the motion is to blame."""
+    """Flag a W that is not clearly rank 3, reporting what was measured.
+
+    The warning gives σ3/σ4 and σ3/σ1; it adds "no rotation out of the image plane" only
+    when that is measured (every frame's rank-2 part a 2D similarity of frame 0's). Other
+    causes — nearly planar points, little rotation, tracks that follow no single rigid
+    motion (tracker failures) — cannot be told apart from W alone and are not guessed.
+    """
     fourth = sv[3] if sv.size > 3 else 0.0
     if not (sv[2] <= 1e-9 * sv[0] or sv[2] < _RANK_GAP * fourth):
         return
@@ -563,18 +635,25 @@ def _check_rank(sv: np.ndarray, motion: np.ndarray, shape: np.ndarray, notes: li
     relative = blocks @ np.linalg.pinv(blocks[0])
     deviation = np.abs(relative[:, 0, 0] - relative[:, 1, 1]) + np.abs(relative[:, 0, 1] + relative[:, 1, 0])
     size = np.linalg.norm(relative, axis=(1, 2))
-    cause = (
-        "no rotation out of the image plane (every frame is a 2D similarity of the first)"
-        if np.all(deviation <= 0.02 * size)
-        else "the points are (nearly) coplanar"
+    worst = float(np.max(deviation / np.maximum(size, np.finfo(float).tiny)))
+    ratio = f"σ3/σ4 = {sv[2] / fourth:.3g}" if fourth > 0 else "σ4 = 0"
+    measured = (
+        f"W is not clearly rank 3 ({ratio}, σ3/σ1 = {sv[2] / sv[0]:.3g}; singular values "
+        f"{np.array2string(sv[:4], precision=4)}): depth is not determined"
     )
-    notes.append(
-        f"W is not clearly rank 3 (singular values {np.array2string(sv[:4], precision=4)}): "
-        f"{cause}; depth is not determined"
-    )
+    if worst <= 0.02:
+        # Measured, not guessed: the rank-2 part of every frame is a 2D similarity of frame 0's.
+        measured += (
+            f"; every frame is a 2D similarity of the first (largest deviation {worst:.2%}): "
+            "no rotation out of the image plane"
+        )
+    notes.append(measured)
 
 
 def _check_shape(shape: np.ndarray, notes: list[str]) -> None:
     spread = np.linalg.svd(shape - shape.mean(axis=0), compute_uv=False)
     if spread[0] > 0 and spread[-1] < _FLAT_RATIO * spread[0]:
-        notes.append(f"the recovered points are (nearly) coplanar (thickness/extent {spread[-1] / spread[0]:.2g})")
+        notes.append(
+            "the recovered points are (nearly) coplanar: smallest/largest spread of the shape "
+            f"{spread[-1] / spread[0]:.2g} (< {_FLAT_RATIO:g})"
+        )

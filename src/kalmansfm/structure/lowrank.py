@@ -3,25 +3,31 @@
 The factorization method needs only the rank-3 part of the centred
 measurement matrix W (2F × P).  For small W a full LAPACK SVD is the simplest
 exact answer; for large W (thousands of frames, 10⁵ points) the full SVD
-takes minutes, while the rank-3 part can be had from a handful of passes over
-W:
+takes minutes, while the rank-k part can be had from a handful of products
+of W with thin blocks of ℓ = k + oversampling columns:
 
-1. randomized range finder: Y = W Ω with an orthonormalised Gaussian Ω
-   (n × ℓ, ℓ = rank + oversampling); the SVD of Y gives the Ritz triplets
-   of W on the right subspace span(Ω): W V = U Σ holds exactly;
-2. one product with the other side, Z = Wᵀ U, is at the same time
-   * the certificate of the current triplets: their residual is
-     R = Wᵀ Uₖ − Vₖ Σₖ (the other side being exact), and Wedin's theorem
-     bounds the angle to the exact leading subspace by ‖R‖_F / (σₖ − σₖ₊₁);
-   * one half-step of subspace iteration: the SVD of Z gives the Ritz
-     triplets on the left subspace span(U), now exact on that side;
-3. alternate sides until the bound is below ``tol``.  Each pass improves the
-   subspace by a factor σₖ₊₁ / σₖ (ℓ ≥ k + 1), so for a well separated rank-3
-   signal three or four passes reach 1e-10 rad.
+1. start: ℓ rows of W drawn with probability proportional to their squared
+   norm (length-squared sampling).  They are W'ᵀ e_rows, so this first
+   right-side block costs no product at all, and it already lies close to the
+   leading right subspace when the rows carry a strong rank-k signal;
+2. Y = W Z gives the first left block U = orth(Y);
+3. subspace iteration on the Gram matrix A = W Wᵀ, with Rayleigh–Ritz on
+   every round trip: Z = Wᵀ U, the SVD of Zᵀ gives the Ritz triplets of W on
+   span(U) (exact on that side: Wᵀ u = σ v), and Y = W Z = A U gives at once
+   * their residual R = A Uₖ − Uₖ Σₖ², hence the Davis–Kahan bound
+     sin θ ≤ ‖R‖₂ / (σₖ² − σₖ₊₁²) on the largest principal angle between
+     the returned left subspace and the exact one;
+   * the next block U = orth(Y), closer by a factor (σₖ₊₁ / σₖ)²;
+4. stop when the bound is below ``tol``.
 
-Every step is a product of W (or Wᵀ) with a thin ℓ-column matrix, so the
-cost is a few memory-bound passes over W.  A per-row offset (the frame
-centroids) is subtracted implicitly, so the centred matrix is never formed.
+The gap needs an upper bound on σₖ₊₁; σₖ₊₁² ≤ ‖W‖_F² − Σᵢ≤ₖ σ̂ᵢ² holds
+because Ritz values never exceed the exact ones, so the bound is rigorous
+whenever that is smaller than σ̂ₖ² (a strong rank-k signal, the usual case for
+a measurement matrix).  Otherwise the Ritz estimate of σₖ₊₁ is used and the
+result says the bound is only an estimate (``certified`` is False).
+
+A per-row offset (the frame centroids) is subtracted implicitly, so the centred
+matrix is never formed.
 """
 
 from __future__ import annotations
@@ -47,10 +53,12 @@ class TruncatedSVD:
     extra_singular_values : the Ritz estimates of the next singular values
         (σ_{rank+1}, …) seen by the sketch (exact when ``method == "lapack"``).
     method : ``"lapack"`` (full SVD) or ``"randomized"``.
-    passes : number of products with W or Wᵀ (0 for LAPACK).
-    angle_bound : Wedin bound (radians) on the largest principal angle between the
-        exact leading subspace and the triplets of the previous pass; the returned
-        triplets are one more half-step of subspace iteration on from those. 0 for LAPACK.
+    passes : number of products of W or Wᵀ with a thin block (0 for LAPACK).
+    angle_bound : bound (radians) on the largest principal angle between the span of
+        ``u`` and the exact leading left singular subspace (Davis–Kahan, from the
+        residual of the returned triplets). 0 for LAPACK.
+    certified : True when ``angle_bound`` is a rigorous bound (the gap used an upper
+        bound of σ_{rank+1}); False when it had to use the Ritz estimate of σ_{rank+1}.
     """
 
     u: np.ndarray
@@ -60,6 +68,7 @@ class TruncatedSVD:
     method: str
     passes: int
     angle_bound: float
+    certified: bool = True
 
 
 def subspace_angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -86,8 +95,8 @@ def truncated_svd(
     rank: int = 3,
     *,
     row_offsets: np.ndarray | None = None,
-    oversampling: int = 10,
-    tol: float = 1e-10,
+    oversampling: int = 1,
+    tol: float = 1e-9,
     max_passes: int = 21,
     method: str = "auto",
     rng: np.random.Generator | int | None = 0,
@@ -100,13 +109,16 @@ def truncated_svd(
     rank : number of singular triplets wanted.
     row_offsets : (m,) subtracted from every column without forming the difference
         (e.g. the frame centroids of a measurement matrix).
-    oversampling : extra sketch columns beyond ``rank`` (randomized method).
+    oversampling : extra block columns beyond ``rank`` (randomized method). The
+        convergence factor per round trip is (σ_{rank+oversampling+1} / σ_rank)²; a
+        measurement matrix has a flat noise tail, where more columns only cost time.
     tol : stop when the bound on the largest principal angle to the exact leading
         subspace is below ``tol`` radians (randomized method).
-    max_passes : at most this many products with the matrix (randomized method).
+    max_passes : at most this many products with the matrix (randomized method; each
+        round trip is two).
     method : ``"lapack"``, ``"randomized"``, or ``"auto"`` (LAPACK when
         min(m, n) ≤ 300 or m·n ≤ 2·10⁶).
-    rng : seed or generator for the Gaussian test matrix.
+    rng : seed or generator for the choice of starting rows.
 
     Returns
     -------
@@ -145,44 +157,63 @@ def _randomized(
 ) -> TruncatedSVD:
     m, n = w.shape
     width = min(k + max(oversampling, 0), m, n)
-    dtype = np.result_type(w.dtype, np.float64)
+    centred = bool(np.any(offsets))
 
-    # (W - c 1ᵀ) X = W X - c (1ᵀ X)
-    def times(x: np.ndarray) -> np.ndarray:
-        return w @ x - np.outer(offsets, x.sum(axis=0))
+    # (W - c 1ᵀ) X = W X - c (1ᵀ X), for X = Zᵀ given as the (ℓ, n) block Z
+    def times(zt: np.ndarray) -> np.ndarray:
+        y = w @ zt.T
+        return y - np.outer(offsets, zt.sum(axis=1)) if centred else y
 
-    # (W - c 1ᵀ)ᵀ Y = Wᵀ Y - 1 (cᵀ Y)
-    def times_transposed(y: np.ndarray) -> np.ndarray:
-        return w.T @ y - (offsets @ y)[None, :]
+    # Uᵀ (W - c 1ᵀ) = Uᵀ W - (Uᵀ c) 1ᵀ, an (ℓ, n) block (the faster GEMM orientation)
+    def transposed_times(u: np.ndarray) -> np.ndarray:
+        zt = u.T @ w
+        if centred:
+            zt -= (offsets @ u)[:, None]
+        return zt
 
-    omega, _ = np.linalg.qr(rng.standard_normal((n, width)).astype(dtype, copy=False))
-    # Rayleigh–Ritz on the right subspace span(Ω): W Ω = U Σ Bᵀ gives U, Σ and V = Ω B.
-    u, s, bt = np.linalg.svd(times(omega), full_matrices=False)
-    v = omega @ bt.T
-    passes, exact_side = 1, "right"  # W V = U Σ holds exactly; the residual is on the other side
+    row_norms = _centred_row_norms(w, offsets)
+    frobenius = float(row_norms.sum())
+    if frobenius == 0.0:
+        zeros = np.zeros(k)
+        return TruncatedSVD(np.eye(m, k), zeros, np.eye(k, n), np.zeros(width - k), "randomized", 0, 0.0)
+    # Length-squared sampling of the starting rows (a pinch of uniform keeps every row possible).
+    probability = row_norms + 1e-3 * frobenius / m
+    rows = np.sort(rng.choice(m, size=width, replace=False, p=probability / probability.sum()))
+    zt = w[rows] - offsets[rows, None]  # = (W - c 1ᵀ)ᵀ e_rows, no product needed
+    u, _ = np.linalg.qr(times(zt))
+    passes = 1
     while True:
-        if exact_side == "right":
-            z = times_transposed(u)  # Wᵀ U
-            residual = np.linalg.norm(z[:, :k] - v[:, :k] * s[:k])
-            # next Ritz triplets on the left subspace span(U): Wᵀ U = Q_z A Σ' Bᵀ
-            qz, rz = np.linalg.qr(z)
-            a, s_next, bt = np.linalg.svd(rz)
-            u_next, v_next = u @ bt.T, qz @ a
-            exact_side = "left"
-        else:
-            y = times(v)  # W V
-            residual = np.linalg.norm(y[:, :k] - u[:, :k] * s[:k])
-            # next Ritz triplets on the right subspace span(V): W V = U' Σ' Bᵀ
-            u_next, s_next, bt = np.linalg.svd(y, full_matrices=False)
-            v_next = v @ bt.T
-            exact_side = "right"
-        passes += 1
-        # Wedin: sin θ ≤ ‖residual‖_F / (σₖ − σₖ₊₁) for the triplets just checked; the new
-        # triplets are one more half-step of subspace iteration, hence at least as close.
-        next_sigma = s[k] if width > k else 0.0
-        gap = s[k - 1] - next_sigma - residual
-        bound = float(np.pi / 2) if gap <= 0 else float(min(np.pi / 2, residual / gap))
-        u, s, v = u_next, s_next, v_next
-        if bound <= tol or passes >= max_passes:
+        zt = transposed_times(u)  # Z = Wᵀ U
+        y = times(zt)  # Y = W Z = A U with A = W Wᵀ
+        passes += 2
+        # Rayleigh–Ritz on span(U): the l × l matrix Zᵀ Z = Uᵀ A U = G Λ Gᵀ (Λ = Ritz σ²)
+        lam, g = np.linalg.eigh(zt @ zt.T)
+        lam, g = np.maximum(lam[::-1], 0.0), g[:, ::-1]
+        # Davis–Kahan residual of the leading Ritz pairs of A: R = A U G - U G Λ
+        residual = np.linalg.norm(y @ g[:, :k] - (u @ g[:, :k]) * lam[:k], 2)
+        # σₖ₊₁² ≤ ‖W‖_F² − Σᵢ≤ₖ σ̂ᵢ² (Ritz values are lower bounds), with room for rounding
+        upper_next = frobenius - lam[:k].sum() + 1e-12 * frobenius
+        certified = upper_next < lam[k - 1]
+        next_lam = upper_next if certified else (lam[k] if width > k else 0.0)
+        gap = lam[k - 1] - next_lam
+        bound = float(np.pi / 2) if gap <= 0 else float(np.arcsin(min(1.0, residual / gap)))
+        # σₖ at rounding level: the k-th direction is not determined by the matrix; iterating cannot help.
+        undetermined = lam[k - 1] <= (64 * np.finfo(float).eps) ** 2 * lam[0]
+        if bound <= tol or undetermined or passes + 2 > max_passes:
             break
-    return TruncatedSVD(u[:, :k], s[:k], v[:, :k].T, s[k:], "randomized", passes, bound)
+        u, _ = np.linalg.qr(y)
+    # The returned triplets from the SVD of Zᵀ = Uᵀ W = G Σ Bᵀ (no squaring): Wᵀ (U G) = B Σ.
+    g, s, bt = np.linalg.svd(zt, full_matrices=False)
+    ritz_u, vt = u @ g[:, :k], bt[:k]
+    return TruncatedSVD(ritz_u, s[:k], vt, s[k:], "randomized", passes, bound, bool(certified))
+
+
+def _centred_row_norms(w: np.ndarray, offsets: np.ndarray, block_rows: int = 16) -> np.ndarray:
+    """Squared norms of the rows of W − c 1ᵀ, a block of rows at a time (no full-size temporary)."""
+    if not np.any(offsets):
+        return np.einsum("ij,ij->i", w, w)
+    out = np.empty(w.shape[0])
+    for start in range(0, w.shape[0], block_rows):
+        block = w[start : start + block_rows] - offsets[start : start + block_rows, None]
+        out[start : start + block_rows] = np.einsum("ij,ij->i", block, block)
+    return out

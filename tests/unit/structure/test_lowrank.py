@@ -44,3 +44,28 @@ def test_subspace_angle_resolves_tiny_angles():
 def test_bad_arguments(kwargs):
     with pytest.raises(InvalidInputError):
         truncated_svd(np.ones((10, 20)), **{"rank": 3, **kwargs})
+
+
+def test_randomized_certificate_bounds_the_true_angle_at_each_stopping_point():
+    rng = np.random.default_rng(3)
+    w, offsets = low_rank_plus_noise(rng, m=200, n=3000, noise=3.0)
+    exact = np.linalg.svd(w - offsets[:, None], full_matrices=False)
+    found = {}
+    for passes in (3, 5, 7):
+        fast = truncated_svd(w, 3, row_offsets=offsets, method="randomized", tol=0.0, max_passes=passes)
+        assert fast.passes == passes and fast.certified
+        angle = subspace_angle(fast.u, exact.U[:, :3])
+        assert angle <= fast.angle_bound * (1 + 1e-6) + 1e-14
+        found[passes] = (angle, fast.angle_bound)
+    # the bound is tight, not just valid: within a factor 2 of the angle after 3 products
+    angle, bound = found[3]
+    assert bound > 1e-9 and angle > 0.5 * bound
+
+
+def test_randomized_on_an_exactly_rank_two_matrix_stops_early():
+    rng = np.random.default_rng(4)
+    w = rng.normal(size=(150, 2)) @ rng.normal(size=(2, 2500))
+    fast = truncated_svd(w, 3, method="randomized")
+    assert fast.passes <= 5
+    np.testing.assert_allclose(fast.s[:2], np.linalg.svd(w, compute_uv=False)[:2], rtol=1e-12)
+    assert fast.s[2] < 1e-9 * fast.s[0]
