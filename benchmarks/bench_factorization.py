@@ -3,8 +3,8 @@ finder with one power iteration, and numpy's full SVD; then the other parts of `
 
 Usage::
 
-    PYTHONPATH=src python benchmarks/bench_factorization.py            # W 2000 x 100000 (needs ~8 GB)
-    PYTHONPATH=src python benchmarks/bench_factorization.py --frames 200 --points 20000
+    python benchmarks/bench_factorization.py            # W 2000 x 100000 (needs ~8 GB)
+    python benchmarks/bench_factorization.py --frames 200 --points 20000
 
 Every method gets the same centred W (2F x P). The reference subspace is the top-3 eigenvectors of
 the 2F x 2F Gram matrix W Wᵀ (one BLAS call + eigh, computed once; its eigenvector error is about

@@ -23,7 +23,7 @@ card); the tracks whose marker stays visible are counted separately.
 
 Run::
 
-    PYTHONPATH=src python benchmarks/bench_failure_modes.py --seeds 20
+    python benchmarks/bench_failure_modes.py --seeds 20
 """
 
 from __future__ import annotations

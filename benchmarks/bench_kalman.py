@@ -7,8 +7,8 @@ agreement with FilterPy on a subsample, and the peak traced memory of the large 
 
 Run on one core:
 
-    PYTHONPATH=src /work/venv/bin/python benchmarks/bench_kalman.py            # 1 000 000 tracks
-    PYTHONPATH=src /work/venv/bin/python benchmarks/bench_kalman.py --tracks 100000 --quick
+    python benchmarks/bench_kalman.py            # 1 000 000 tracks
+    python benchmarks/bench_kalman.py --tracks 100000 --quick
 
 Peers that cannot hold the full size in memory (simdkalman stores every step's covariance) or
 are too slow (FilterPy, one Python object per track) are timed on a subsample and reported

@@ -2,7 +2,7 @@
 
 Run from the repository root:
 
-    PYTHONPATH=src /work/venv/bin/python benchmarks/bench_smoothing.py [--seeds 10] [--frames 30]
+    python benchmarks/bench_smoothing.py [--seeds 10] [--frames 30]
 
 For each seed the scene is rendered three times: plain; with the default occluder card
 (``Occluder()``: it hides track 0 in frames 10–12, track 1 in 20–23 — one frame more than

@@ -2,7 +2,7 @@
 
 Run from the repository root:
 
-    PYTHONPATH=src /work/venv/bin/python benchmarks/bench_tracker.py [--quick]
+    python benchmarks/bench_tracker.py [--quick]
 
 Prints one table: accuracy against ground truth where there is some (the built-in
 scene, cmu_house's hand labels, pure sub-pixel translations of a texture), track

@@ -2,7 +2,7 @@
 
 Usage::
 
-    PYTHONPATH=src python benchmarks/real_data_factorization.py [--figures docs/figures] [--images docs/images]
+    python benchmarks/real_data_factorization.py [--figures docs/figures] [--images docs/images]
 
 The first part factorizes the tracks and labels shipped with the data sets; the second
 (``== sequences tracked by our tracker``) runs ``kalmansfm.track`` on the image sequences and
