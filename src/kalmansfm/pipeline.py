@@ -25,6 +25,7 @@ from . import __version__
 from .errors import InvalidInputError, NotEnoughDataError
 from .io.atomic import OutputDirectory, check_output_directory, output_directory
 from .io.ground_truth import frame_name, scene_files
+from .io.npz import load_npz
 from .io.structure import motion_csv, structure_csv, structure_ply
 from .io.track_table import TrackPositions, read_track_positions
 from .io.tracks import read_tracks_npz, write_tracks_csv, write_tracks_npz
@@ -155,8 +156,7 @@ def read_tracks_for_factorization(path: str | Path, *, smooth: bool | None = Non
     if path.suffix.lower() != ".npz":
         reason = f"{path} is a CSV; smoothing needs the tracker's tracks.npz (states and covariances)"
     else:
-        with np.load(path, allow_pickle=False) as data:
-            names = set(data.files)
+        names = set(load_npz(path))
         if not {"states", "covariances"} <= names:
             reason = f"{path} holds no tracker states and covariances"
         else:

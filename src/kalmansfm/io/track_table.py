@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import csv
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InvalidInputError
+from .npz import load_npz
 
 __all__ = ["TrackPositions", "read_track_positions", "STATUS_CODES"]
 
@@ -188,11 +188,7 @@ def _floats(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np.
 
 
 def _read_npz(file: Path) -> TrackPositions:
-    try:
-        with np.load(file, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise InvalidInputError(f"{file}: not a readable NPZ file ({exc or type(exc).__name__})") from None
+    arrays = load_npz(file)
     missing = [k for k in ("positions", "status", "track_ids") if k not in arrays]
     if missing:
         raise InvalidInputError(f"{file}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(arrays)) or 'none'}")

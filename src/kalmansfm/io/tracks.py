@@ -19,12 +19,12 @@ import csv
 import io
 import json
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InvalidInputError
+from .npz import load_npz
 from ..tracking.tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks
 
 __all__ = ["read_points_csv", "read_tracks_csv", "read_tracks_npz", "tracks_to_csv", "write_tracks_csv", "write_tracks_npz"]
@@ -102,11 +102,7 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
 def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     """Read a file written by :func:`write_tracks_npz`."""
     path = Path(path)
-    try:
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise InvalidInputError(f"{path} is not a readable tracks .npz file ({exc or type(exc).__name__})") from None
+    arrays = load_npz(path)
     missing = {"positions", "states", "covariances", "status", "track_ids"} - set(arrays)
     if missing:
         raise InvalidInputError(f"{path} lacks the arrays {sorted(missing)}")

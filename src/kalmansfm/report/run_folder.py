@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..io.npz import load_npz
 
 __all__ = [
     "RunFolder",
@@ -152,11 +153,7 @@ def read_summary(path: str | Path) -> dict[str, Any]:
 
 
 def _read_tracks(path: Path) -> TrackArrays:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError) as exc:
-        raise InvalidInputError(f"{path}: cannot be read as a NumPy .npz archive ({exc})") from None
+    arrays = load_npz(path)
     missing = [name for name in ("positions", "status", "track_ids") if name not in arrays]
     if missing:
         raise InvalidInputError(f"{path}: missing array(s) {', '.join(missing)}; found {sorted(arrays)}")
