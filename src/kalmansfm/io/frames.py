@@ -154,7 +154,7 @@ def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
     try:
         import av
     except ImportError:
-        raise InvalidInputError(f"{path} could not be decoded as a video by OpenCV (and PyAV is not installed)") from None
+        raise InvalidInputError(f"{path} is not a decodable video (OpenCV could not read it; PyAV is not installed)") from None
     # libav's own log lines would go straight to stderr; PANIC routes only fatal ones to Python logging
     previous_level = av.logging.get_level()
     av.logging.set_level(av.logging.PANIC)

@@ -78,3 +78,15 @@ def test_video_and_undecodable_video(tmp_path):
     bogus.write_bytes(b"\x00garbage" * 100)
     with pytest.raises(InvalidInputError, match="clip.mp4"):
         read_frames(bogus)
+
+
+@pytest.mark.parametrize("with_pyav", [True, False])
+def test_undecodable_video_message_is_the_same_with_or_without_pyav(tmp_path, monkeypatch, with_pyav):
+    import sys
+
+    if not with_pyav:
+        monkeypatch.setitem(sys.modules, "av", None)  # makes `import av` raise ImportError
+    bogus = tmp_path / "broken.mp4"
+    bogus.write_bytes(b"\x00garbage" * 100)
+    with pytest.raises(InvalidInputError, match=r"broken\.mp4 is not a decodable video"):
+        list(read_frames(bogus))
