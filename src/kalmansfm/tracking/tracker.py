@@ -7,7 +7,8 @@ live track:
 2. search each track's template inside its gate ellipse
    (p - p⁻)ᵀ (Σ⁻_pos)⁻¹ (p - p⁻) ≤ c² (:func:`~kalmansfm.tracking.matching.match_templates`);
 3. accept the refined best match as the measurement z when its dissimilarity is
-   below ``max_dissimilarity``; otherwise the row of z is NaN and the track coasts;
+   below ``max_dissimilarity`` and its innovation is plausible for this track (see
+   below); otherwise the row of z is NaN and the track coasts;
 4. update; a track that coasted ``max_misses`` frames in a row and misses again
    is lost.
 
@@ -28,6 +29,24 @@ Drift can then only accumulate at these rare anchor renewals, not at every frame
 The anchor is trusted only when it matches very well (``anchor_dissimilarity``),
 because the peak of a template that matches poorly is biased.  ``template_policy="first"`` uses the anchor only,
 ``"last"`` re-cuts the template at every match (drifts).
+
+Identity safety.  A template re-cut at every match can slide onto whatever passes
+over its point (an occluding card, a look-alike marker crossing it), and the
+model's gate (Q = 16 px²) is far wider than the few tenths of a pixel a smoothly
+moving point departs from its prediction.  Three rules keep a track on its own
+point or end it:
+
+- *innovation plausibility*: every match must satisfy
+  ‖z - p⁻‖² ≤ κ² (k + 1) (m + floor²), with m the track's exponentially weighted
+  mean squared innovation, k the frames it has coasted and κ = ``max_innovation_ratio``;
+- *re-acquisition by the anchor only*: a coasting track is searched with its anchor
+  and re-acquired only at the trusted level ``anchor_dissimilarity``; its current
+  template then restarts from the anchor;
+- *clean anchor renewal*: the anchor is replaced only on a frame where the current
+  template's own match is as clean as a trusted anchor's, so a partly hidden
+  patch never becomes an anchor.
+
+A track predicted where its window does not fit in the image is not measured.
 """
 
 from __future__ import annotations
@@ -62,6 +81,12 @@ DEFAULT_MAX_DISSIMILARITY = {"ssd": 0.5, "ncc": 0.3}
 # The anchor must match much better than a mere "acceptable" match to be trusted as the
 # drift-free position (a poorly matching template's peak is biased); tuned on the built-in scene (ssd) and cmu_house (ncc).
 DEFAULT_ANCHOR_DISSIMILARITY = {"ssd": 0.3, "ncc": 0.05}
+# Innovation plausibility of every match: ‖z - p⁻‖² ≤ κ² (m + floor²), with m the track's
+# exponentially weighted mean squared innovation (weight of the newest frame below).
+_INNOVATION_FLOOR_PX = 1.5
+_INNOVATION_WEIGHT = 0.3
+# A new track's velocity comes from one frame difference: its first innovations may be a few pixels.
+_INITIAL_INNOVATION_SQ = 2.0
 
 
 @dataclass(frozen=True)
@@ -119,8 +144,8 @@ class Tracker:
     max_misses : a track coasts at most this many consecutive frames; the next miss loses it.
     max_dissimilarity : a match is accepted when SSD / Σ(T - T̄)² (``ssd``) or
         1 - NCC (``ncc``) is at most this (default 0.5 for ssd, 0.3 for ncc).  A
-        coasting track is searched with its anchor template and re-acquired only below
-        the mean of ``max_dissimilarity`` and ``anchor_dissimilarity``.
+        coasting track is searched with its anchor template and re-acquired only at
+        ``anchor_dissimilarity`` (policies "first" and "last": below the mean of the two).
     template_policy : ``"anchored"`` (default), ``"first"`` or ``"last"`` (module docs).
     model : the motion model (default :func:`~kalmansfm.models.constant_velocity_2d`).
     max_features, quality_level, min_distance_px : corner detection settings when
@@ -135,7 +160,11 @@ class Tracker:
         (:func:`~kalmansfm.tracking.matching.refine_translation`); less biased than the
         quadratic fit alone, which matters because templates are re-cut at the matches.
     anchor_patience : (``"anchored"`` policy) after this many frames in a row without a
-        trusted anchor match, the current template becomes the new anchor.
+        trusted anchor match, the current template becomes the new anchor (on the first
+        such frame where its own match is as clean as a trusted anchor's).
+    max_innovation_ratio : κ of the innovation test: a match is refused when
+        ‖z - p⁻‖² > κ² (k + 1) (m + (1.5 px)²), m the track's recent mean squared
+        innovation and k the frames it has coasted (module docs).
 
     Examples
     --------
@@ -172,6 +201,7 @@ class Tracker:
         anchor_dissimilarity: float | None = None,
         anchor_patience: int = 4,
         refine: bool = True,
+        max_innovation_ratio: float = 3.0,
     ) -> None:
         if int(window) != window or window < 3 or window % 2 == 0:
             raise InvalidInputError(f"window must be an odd integer >= 3; got {window}")
@@ -203,6 +233,9 @@ class Tracker:
         if int(anchor_patience) != anchor_patience or anchor_patience < 1:
             raise InvalidInputError(f"anchor_patience must be an integer >= 1; got {anchor_patience}")
         self.anchor_patience = int(anchor_patience)
+        if not (math.isfinite(max_innovation_ratio) and max_innovation_ratio > 0):
+            raise InvalidInputError(f"max_innovation_ratio must be a positive number; got {max_innovation_ratio}")
+        self.max_innovation_ratio = float(max_innovation_ratio)
         # Halfway between "acceptable" and "trusted anchor".
         self.reacquire_dissimilarity = 0.5 * (self.max_dissimilarity + self.anchor_dissimilarity)
         self.model = constant_velocity_2d() if model is None else model
@@ -223,6 +256,7 @@ class Tracker:
             "anchor_dissimilarity": self.anchor_dissimilarity,
             "anchor_patience": self.anchor_patience,
             "refine": self.refine,
+            "max_innovation_ratio": self.max_innovation_ratio,
             "reacquire_dissimilarity": self.reacquire_dissimilarity,
             "max_features": self.max_features,
             "quality_level": self.quality_level,
@@ -256,6 +290,7 @@ class Tracker:
         self._anchors = np.zeros((0, self.window, self.window))
         self._anchor_strikes = np.zeros(0, np.int64)
         self._misses = np.zeros(0, np.int64)
+        self._innovation_sq = np.zeros(0)
         # Tracks started in the previous frame and waiting for their second frame.
         self._pending_ids = np.zeros(0, np.int64)
         self._pending_positions = np.zeros((0, 2))
@@ -401,11 +436,13 @@ class Tracker:
             anchors = np.concatenate([self._anchors, anchors])
             misses = np.concatenate([self._misses, misses])
             strikes = np.concatenate([self._anchor_strikes, np.zeros(len(states) - len(self._ids), np.int64)])
+            innovation_sq = np.concatenate([self._innovation_sq, np.full(len(states) - len(self._ids), _INITIAL_INNOVATION_SQ)])
         else:
             strikes = np.zeros(len(states), np.int64)
-        self._set_filter(ids, states, covariances, templates, anchors, misses, strikes)
+            innovation_sq = np.full(len(states), _INITIAL_INNOVATION_SQ)
+        self._set_filter(ids, states, covariances, templates, anchors, misses, strikes, innovation_sq)
 
-    def _set_filter(self, ids, states, covariances, templates, anchors, misses, strikes) -> None:  # type: ignore[no-untyped-def]
+    def _set_filter(self, ids, states, covariances, templates, anchors, misses, strikes, innovation_sq) -> None:  # type: ignore[no-untyped-def]
         m = self.model
         if len(ids):
             shared = bool(np.all(covariances == covariances[:1]))
@@ -414,7 +451,7 @@ class Tracker:
         else:
             self._kf = None
         self._ids, self._templates, self._anchors = ids, templates, anchors
-        self._misses, self._anchor_strikes = misses, strikes
+        self._misses, self._anchor_strikes, self._innovation_sq = misses, strikes, innovation_sq
 
     def _step_filter(self, frame: PreparedFrame) -> _FrameRecord:
         kf = self._kf
@@ -423,8 +460,9 @@ class Tracker:
         predicted = kf.x_prior[:, :2].copy()
         prior_P = np.array(kf.P_prior)
         coasting = self._misses > 0
+        anchored = self.template_policy == "anchored"
         search_templates = self._templates
-        if self.template_policy == "anchored" and coasting.any():
+        if anchored and coasting.any():
             # The current template may have caught part of whatever hid the point: a
             # coasting track is searched with its anchor, the last verified appearance.
             search_templates = np.where(coasting[:, None, None], self._anchors, self._templates)
@@ -432,19 +470,57 @@ class Tracker:
             frame, search_templates, predicted, prior_P[:, :2, :2], self.gate_radius, self.score, self.max_search_radius
         )
         z = match.positions.copy()
-        # A coasting track must match as well as a trusted anchor to be re-acquired, so
-        # that it does not latch on to a look-alike in its grown gate.
-        threshold = np.where(coasting, self.reacquire_dissimilarity, self.max_dissimilarity)
-        good = match.searched & (match.dissimilarity <= threshold)
         dissimilarity = match.dissimilarity
+        found = match.searched & (dissimilarity <= self.max_dissimilarity)
         used = search_templates
-        if self.template_policy == "anchored" and good.any():
-            z, dissimilarity, used_anchor = self._anchor_correction(frame, z, good, dissimilarity)
-            used = np.where(used_anchor[:, None, None], self._anchors, self._templates)
+        if anchored:
+            # A coasting track is re-acquired only by its anchor, matching as well as a
+            # trusted anchor does (not merely acceptably), so that it does not latch on to
+            # a look-alike in its grown gate.
+            confirmed = coasting & found & (dissimilarity <= self.anchor_dissimilarity)
+            tracking = found & ~coasting
+            if tracking.any():
+                z, dissimilarity, agrees = self._anchor_check(frame, z, tracking, dissimilarity)
+                confirmed |= agrees
+            used = np.where(confirmed[:, None, None], self._anchors, self._templates)
+            accepted = confirmed | tracking
+        else:
+            threshold = np.where(coasting, self.reacquire_dissimilarity, self.max_dissimilarity)
+            accepted = found & (dissimilarity <= threshold)
+        # The match must also move as the track has been moving.  Its innovation ‖z - p⁻‖²
+        # must stay within κ² (m + floor²), m the track's recent mean squared innovation,
+        # κ = max_innovation_ratio.  The model's own gate (Q = 16 px²) is far wider than
+        # the few tenths of a pixel a smoothly moving point deviates from its
+        # prediction, so a look-alike that a template slides onto (a card passing over
+        # a hidden marker, carrying texture or a marker of its own) is accepted by the
+        # gate but jumps against a streak of small innovations.  While coasting, the
+        # prediction error grows about linearly with the frames missed.
+        innovation_sq = np.sum((z - predicted) ** 2, axis=1)
+        scale_sq = self.max_innovation_ratio**2 * (1.0 + self._misses)
+        plausible = innovation_sq <= scale_sq * (self._innovation_sq + _INNOVATION_FLOOR_PX**2)
+        # A track predicted where its window does not fit in the image (leaving it) is not
+        # measured: its gate is clipped to the image, and the best match of a clipped
+        # gate is wherever the image ends, not the point.
+        half_w = self.window // 2
+        height, width = frame.shape
+        centre = np.round(predicted)
+        plausible &= (
+            (centre[:, 0] >= half_w) & (centre[:, 0] <= width - 1 - half_w) & (centre[:, 1] >= half_w) & (centre[:, 1] <= height - 1 - half_w)
+        )
+        good = accepted & plausible
         if self.refine and good.any():
             z[good] = refine_translation(frame, used[good], z[good])
+        if anchored:
+            self._update_anchor_strikes(frame, z, good, good & confirmed, dissimilarity)
         z[~good] = np.nan
         kf.update(z)
+        # Exponentially weighted mean of the squared one-frame innovation of accepted matches
+        # (after coasting k frames, the innovation's square over k + 1).
+        self._innovation_sq = np.where(
+            good,
+            (1.0 - _INNOVATION_WEIGHT) * self._innovation_sq + _INNOVATION_WEIGHT * innovation_sq / (1.0 + self._misses),
+            self._innovation_sq,
+        )
 
         misses = np.where(good, 0, self._misses + 1)
         lost = misses > self.max_misses
@@ -460,43 +536,61 @@ class Tracker:
             fresh = sample_patches(frame, z[good], self.window)
             self._templates = self._templates.copy()
             self._templates[good] = fresh
+            if anchored:
+                # A re-acquired track restarts from its anchor: the patch at the re-acquired
+                # point may still hold part of whatever hid it.
+                reacquired = good & coasting
+                self._templates[reacquired] = self._anchors[reacquired]
         self._misses = misses
         if lost.any():
             keep = ~lost
             P_keep = np.broadcast_to(kf.P, (len(self._ids), 4, 4))[keep]
             self._set_filter(
                 self._ids[keep], kf.x[keep], P_keep, self._templates[keep], self._anchors[keep],
-                self._misses[keep], self._anchor_strikes[keep],
+                self._misses[keep], self._anchor_strikes[keep], self._innovation_sq[keep],
             )
         return record
 
-    def _anchor_correction(
-        self, frame: PreparedFrame, z: np.ndarray, good: np.ndarray, dissimilarity: np.ndarray
+    def _anchor_check(
+        self, frame: PreparedFrame, z: np.ndarray, tracking: np.ndarray, dissimilarity: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Re-locate the anchor template near the current template's match; see the module docs."""
-        rows = np.flatnonzero(good)
+        """Re-locate the anchor template near the current template's match; see the module docs.
+
+        Returns the measurements (the anchor's position where it is trusted), their
+        dissimilarities, and where the anchor is trusted.
+        """
+        rows = np.flatnonzero(tracking)
         # A tiny isotropic gate of about 2 px around the current match.
         tight = np.broadcast_to(np.eye(2) * (2.0 / self.gate_radius) ** 2, (len(rows), 2, 2))
         anchor = match_templates(frame, self._anchors[rows], z[rows], tight, self.gate_radius, self.score, 4)
-        agrees = anchor.searched & (anchor.dissimilarity <= self.anchor_dissimilarity)
+        trusted = anchor.searched & (anchor.dissimilarity <= self.anchor_dissimilarity)
         z = z.copy()
         dissimilarity = dissimilarity.copy()
-        z[rows[agrees]] = anchor.positions[agrees]
-        dissimilarity[rows[agrees]] = anchor.dissimilarity[agrees]
-        # The anchor no longer matches: after two such frames in a row the view has
-        # changed for good and the current template becomes the new anchor.
+        z[rows[trusted]] = anchor.positions[trusted]
+        dissimilarity[rows[trusted]] = anchor.dissimilarity[trusted]
+        agrees = np.zeros(len(z), dtype=bool)
+        agrees[rows[trusted]] = True
+        return z, dissimilarity, agrees
+
+    def _update_anchor_strikes(
+        self, frame: PreparedFrame, z: np.ndarray, good: np.ndarray, confirmed: np.ndarray, dissimilarity: np.ndarray
+    ) -> None:
+        """Count frames in a row whose accepted match the anchor did not confirm; renew the anchor after ``anchor_patience``.
+
+        The view has then changed for good, and the current template's match becomes
+        the new anchor — but only on a frame where that match is itself as clean as a
+        trusted anchor's, so that a partly occluded patch never becomes an anchor.
+        """
         strikes = self._anchor_strikes.copy()
-        strikes[rows[agrees]] = 0
-        strikes[rows[~agrees]] += 1
-        renew = rows[~agrees][strikes[rows[~agrees]] >= self.anchor_patience]
+        strikes[confirmed] = 0
+        unconfirmed = good & ~confirmed
+        strikes[unconfirmed] += 1
+        renew = np.flatnonzero(unconfirmed & (strikes >= self.anchor_patience) & (dissimilarity <= self.anchor_dissimilarity))
         if len(renew):
             self._anchors = self._anchors.copy()
             self._anchors[renew] = sample_patches(frame, z[renew], self.window)
             strikes[renew] = 0
         self._anchor_strikes = strikes
-        used_anchor = np.zeros(len(z), dtype=bool)
-        used_anchor[rows[agrees]] = True
-        return z, dissimilarity, used_anchor
 
     def _estimate(self) -> FrameEstimate:
         r = self._records[-1]
