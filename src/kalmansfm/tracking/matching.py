@@ -38,6 +38,7 @@ __all__ = [
     "match_templates",
     "prepare_frame",
     "refine_translation",
+    "TemplateSpectra",
     "sample_patches",
     "subpixel_peak",
 ]
@@ -182,10 +183,11 @@ def sample_patches(image: np.ndarray | PreparedFrame, centers: np.ndarray, size:
     top_left = np.clip(top_left, 0, np.array(padded.shape) - size - 1)
     windows = _gather_windows(padded, top_left, size + 1).astype(np.float64)
     fx, fy = fraction[:, 0, None, None], fraction[:, 1, None, None]
-    # I(x + fx, y + fy) = (1 - fy)[(1 - fx) I₀₀ + fx I₀₁] + fy[(1 - fx) I₁₀ + fx I₁₁]
-    upper = windows[:, :-1, :-1] + fx * (windows[:, :-1, 1:] - windows[:, :-1, :-1])
-    lower = windows[:, 1:, :-1] + fx * (windows[:, 1:, 1:] - windows[:, 1:, :-1])
-    patches = upper + fy * (lower - upper)
+    # I(x + fx, y + fy) = (1 - fy)[(1 - fx) I₀₀ + fx I₀₁] + fy[(1 - fx) I₁₀ + fx I₁₁]:
+    # blend along x once for all size + 1 rows, then the neighbouring rows along y.
+    across = windows[:, :, :-1] + fx * (windows[:, :, 1:] - windows[:, :, :-1])
+    upper = across[:, :-1]
+    patches = upper + fy * (across[:, 1:] - upper)
     patches[~finite] = np.nan
     return patches
 
@@ -291,30 +293,90 @@ class MatchResult:
     searched: np.ndarray
 
 
-def _template_spectra(
-    templates: np.ndarray, fft_size: int, score: str, factor: float = 1.0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Conjugate spectra (fft_size², single precision) of ``factor`` × the templates — zero-mean
-    for NCC — and the templates' raw and zero-mean energies.
+def _template_spectra(templates: np.ndarray, fft_size: int, score: str) -> tuple[np.ndarray, np.ndarray]:
+    """Conjugate spectra (fft_size², single precision) of the templates times the cost's
+    factor (-2 for SSD, -1 for NCC) — zero-mean for NCC — and the templates' zero-mean energies.
 
     The template occupies only w of the fft_size rows, so the 2D transform is done
     as a real transform of those w rows followed by a complex one along the columns.
     """
     templates = np.asarray(templates, dtype=np.float64)
-    mean = templates.mean(axis=(1, 2), keepdims=True)
-    centred = templates - mean
+    # The factor folds the cost's -2 (SSD) or -1 (NCC) into the correlation.
+    factor = -2.0 if score == "ssd" else -1.0
+    centred = templates - templates.mean(axis=(1, 2), keepdims=True)
     zero_mean_energy = np.einsum("nij,nij->n", centred, centred)
-    raw_energy = np.einsum("nij,nij->n", templates, templates)
-    used = (factor * (centred if score == "ncc" else templates)).astype(np.float32)
-    rows = scipy.fft.rfft(used, n=fft_size, axis=2)
-    spectra = scipy.fft.fft(rows, n=fft_size, axis=1)
+    n, w = templates.shape[:2]
+    # Zero-padded explicitly: much faster than letting scipy.fft pad (its ``n=`` argument) for small stacks.
+    used = np.zeros((n, w, fft_size), np.float32)
+    used[:, :, :w] = factor * (centred if score == "ncc" else templates)
+    rows = np.zeros((n, fft_size, fft_size // 2 + 1), np.complex64)
+    rows[:, :w] = scipy.fft.rfft(used, axis=2)
+    spectra = scipy.fft.fft(rows, axis=1, overwrite_x=True)
     np.conjugate(spectra, out=spectra)
-    return spectra, raw_energy, zero_mean_energy
+    return spectra, zero_mean_energy
+
+
+class TemplateSpectra:
+    """A stack of templates with their conjugate spectra kept per FFT size and score.
+
+    For templates that rarely change (the tracker's anchors): each spectrum is
+    computed on the first search that needs it and reused until its template is
+    replaced.  Pass it to :func:`match_templates` in place of the template array.
+
+    Parameters
+    ----------
+    templates : (N, w, w) templates.
+
+    Examples
+    --------
+    >>> bank = TemplateSpectra(np.ones((3, 5, 5)))
+    >>> bank.take(np.array([0, 2])).replace(np.array([1]), np.zeros((1, 5, 5))).templates.sum(axis=(1, 2))
+    array([25.,  0.])
+    """
+
+    def __init__(self, templates: np.ndarray, _entries: dict | None = None) -> None:
+        self.templates = np.asarray(templates, dtype=np.float64)
+        self._entries: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {} if _entries is None else _entries
+
+    def __len__(self) -> int:
+        return len(self.templates)
+
+    def spectra(self, rows: np.ndarray, fft_size: int, score: str) -> tuple[np.ndarray, np.ndarray]:
+        """Conjugate spectra and zero-mean energies of the templates at ``rows`` (see :func:`_template_spectra`)."""
+        key = (fft_size, score)
+        if key not in self._entries:
+            self._entries[key] = _template_spectra(self.templates, fft_size, score)
+        spectra, energy = self._entries[key]
+        return spectra[rows], energy[rows]
+
+    def take(self, index: np.ndarray) -> TemplateSpectra:
+        """The templates (and their cached spectra) at ``index`` (indices or a boolean mask)."""
+        return TemplateSpectra(self.templates[index], {k: (s[index], e[index]) for k, (s, e) in self._entries.items()})
+
+    def append(self, templates: np.ndarray) -> TemplateSpectra:
+        """These templates followed by ``templates``; only the new ones are transformed."""
+        templates = np.asarray(templates, dtype=np.float64).reshape(-1, *self.templates.shape[1:])
+        entries = {}
+        for (fft_size, score), (s, e) in self._entries.items():
+            s_new, e_new = _template_spectra(templates, fft_size, score)
+            entries[(fft_size, score)] = (np.concatenate([s, s_new]), np.concatenate([e, e_new]))
+        return TemplateSpectra(np.concatenate([self.templates, templates]), entries)
+
+    def replace(self, rows: np.ndarray, templates: np.ndarray) -> TemplateSpectra:
+        """A copy with the templates at ``rows`` replaced; only those are transformed again."""
+        new_templates = self.templates.copy()
+        new_templates[rows] = templates
+        entries = {}
+        for (fft_size, score), (s, e) in self._entries.items():
+            s, e = s.copy(), e.copy()
+            s[rows], e[rows] = _template_spectra(new_templates[rows], fft_size, score)
+            entries[(fft_size, score)] = (s, e)
+        return TemplateSpectra(new_templates, entries)
 
 
 def match_templates(
     frame: PreparedFrame,
-    templates: np.ndarray,
+    templates: np.ndarray | TemplateSpectra,
     predicted: np.ndarray,
     position_covariances: np.ndarray,
     gate_radius: float,
@@ -326,7 +388,8 @@ def match_templates(
     Parameters
     ----------
     frame : the prepared frame (:func:`prepare_frame`), same ``window`` as the templates.
-    templates : (N, w, w) templates, w = ``frame.window``.
+    templates : (N, w, w) templates, w = ``frame.window``; or a :class:`TemplateSpectra`
+        of them, whose spectra are then reused across calls.
     predicted : (N, 2) predicted positions p⁻ (x, y).
     position_covariances : (N, 2, 2) predicted position covariances Σ⁻_pos.
     gate_radius : c; candidates with (p - p⁻)ᵀ (Σ⁻_pos)⁻¹ (p - p⁻) > c² are ignored.
@@ -378,12 +441,15 @@ def match_templates(
     side = (np.floor(2.0 * reach) + 1.0).astype(int)
     origin = np.ceil(predicted - reach[:, None])
     inverse = np.linalg.inv(np.where(inside[:, None, None], cov, np.eye(2)))
+    bank = templates if isinstance(templates, TemplateSpectra) else None
+    if bank is not None:
+        templates = bank.templates
     for group_side, rows in _size_classes(side, inside):
         # A box enlarged to the group's side grows on both sides (it stays in the padding).
         group_origin = origin[rows] - ((group_side - side[rows]) // 2)[:, None]
         _search_group(
             frame, templates[rows], predicted[rows], group_origin, inverse[rows], gate_radius, score, group_side,
-            rows, positions, scores, dissimilarity, searched,
+            rows, positions, scores, dissimilarity, searched, bank,
         )
     return MatchResult(positions, scores, dissimilarity, searched)
 
@@ -424,6 +490,7 @@ def _search_group(
     scores: np.ndarray,
     dissimilarity: np.ndarray,
     searched: np.ndarray,
+    bank: TemplateSpectra | None = None,
 ) -> None:
     """Search one group of tracks whose candidate boxes are ``side``×``side`` from ``origin`` (x, y); fill the outputs at ``rows``.
 
@@ -448,9 +515,10 @@ def _search_group(
     if fft_size - span > _FFT_SLACK:
         fft_size = span
     patches = _gather_windows(frame.padded, cand_top_left - half_w, fft_size)
-    # The template's factor folds the cost's -2 (SSD) or -1 (NCC) into the correlation.
-    factor = -2.0 if score == "ssd" else -1.0
-    spectra, raw_energy, zero_mean_energy = _template_spectra(templates, fft_size, score, factor)
+    if bank is None:
+        spectra, zero_mean_energy = _template_spectra(templates, fft_size, score)
+    else:
+        spectra, zero_mean_energy = bank.spectra(rows, fft_size, score)
     spectrum = scipy.fft.rfft2(patches)
     spectrum *= spectra
     partial = scipy.fft.ifft(spectrum, axis=1, overwrite_x=True)[:, :side]

@@ -65,6 +65,7 @@ from .detect import detect_corners
 from .matching import (
     SCORES,
     PreparedFrame,
+    TemplateSpectra,
     gate_radius_for_probability,
     match_templates,
     prepare_frame,
@@ -287,7 +288,8 @@ class Tracker:
         self._kf: KalmanFilter | None = None
         self._ids = np.zeros(0, np.int64)
         self._templates = np.zeros((0, self.window, self.window))
-        self._anchors = np.zeros((0, self.window, self.window))
+        # The anchors with their spectra, transformed again only when an anchor changes.
+        self._anchor_bank = TemplateSpectra(np.zeros((0, self.window, self.window)))
         self._anchor_strikes = np.zeros(0, np.int64)
         self._misses = np.zeros(0, np.int64)
         self._innovation_sq = np.zeros(0)
@@ -433,7 +435,7 @@ class Tracker:
             covariances = np.concatenate([np.broadcast_to(self._kf.P, (len(self._ids), 4, 4)), covariances])
             ids = np.concatenate([self._ids, ids])
             templates = np.concatenate([self._templates, templates])
-            anchors = np.concatenate([self._anchors, anchors])
+            anchors = self._anchor_bank.append(anchors)
             misses = np.concatenate([self._misses, misses])
             strikes = np.concatenate([self._anchor_strikes, np.zeros(len(states) - len(self._ids), np.int64)])
             innovation_sq = np.concatenate([self._innovation_sq, np.full(len(states) - len(self._ids), _INITIAL_INNOVATION_SQ)])
@@ -450,7 +452,8 @@ class Tracker:
             self._kf = KalmanFilter(states, P, m.F, m.H, m.Q, m.R)
         else:
             self._kf = None
-        self._ids, self._templates, self._anchors = ids, templates, anchors
+        self._ids, self._templates = ids, templates
+        self._anchor_bank = anchors if isinstance(anchors, TemplateSpectra) else TemplateSpectra(anchors)
         self._misses, self._anchor_strikes, self._innovation_sq = misses, strikes, innovation_sq
 
     def _step_filter(self, frame: PreparedFrame) -> _FrameRecord:
@@ -546,7 +549,7 @@ class Tracker:
             keep = ~lost
             P_keep = np.broadcast_to(kf.P, (len(self._ids), 4, 4))[keep]
             self._set_filter(
-                self._ids[keep], kf.x[keep], P_keep, self._templates[keep], self._anchors[keep],
+                self._ids[keep], kf.x[keep], P_keep, self._templates[keep], self._anchor_bank.take(keep),
                 self._misses[keep], self._anchor_strikes[keep], self._innovation_sq[keep],
             )
         return record
@@ -559,18 +562,19 @@ class Tracker:
         Returns the measurements (the anchor's position where it is trusted), their
         dissimilarities, and where the anchor is trusted.
         """
-        rows = np.flatnonzero(tracking)
-        # A tiny isotropic gate of about 2 px around the current match.
-        tight = np.broadcast_to(np.eye(2) * (2.0 / self.gate_radius) ** 2, (len(rows), 2, 2))
-        anchor = match_templates(frame, self._anchors[rows], z[rows], tight, self.gate_radius, self.score, 4)
-        trusted = anchor.searched & (anchor.dissimilarity <= self.anchor_dissimilarity)
-        z = z.copy()
-        dissimilarity = dissimilarity.copy()
-        z[rows[trusted]] = anchor.positions[trusted]
-        dissimilarity[rows[trusted]] = anchor.dissimilarity[trusted]
-        agrees = np.zeros(len(z), dtype=bool)
-        agrees[rows[trusted]] = True
+        # A tiny isotropic gate of about 2 px around the current match; the other tracks
+        # get no prediction and are not searched (the anchor bank is indexed by track).
+        around = np.where(tracking[:, None], z, np.nan)
+        tight = np.broadcast_to(np.eye(2) * (2.0 / self.gate_radius) ** 2, (len(z), 2, 2))
+        anchor = match_templates(frame, self._anchor_bank, around, tight, self.gate_radius, self.score, 4)
+        agrees = tracking & anchor.searched & (anchor.dissimilarity <= self.anchor_dissimilarity)
+        z = np.where(agrees[:, None], anchor.positions, z)
+        dissimilarity = np.where(agrees, anchor.dissimilarity, dissimilarity)
         return z, dissimilarity, agrees
+
+    @property
+    def _anchors(self) -> np.ndarray:
+        return self._anchor_bank.templates
 
     def _update_anchor_strikes(
         self, frame: PreparedFrame, z: np.ndarray, good: np.ndarray, confirmed: np.ndarray, dissimilarity: np.ndarray
@@ -587,8 +591,7 @@ class Tracker:
         strikes[unconfirmed] += 1
         renew = np.flatnonzero(unconfirmed & (strikes >= self.anchor_patience) & (dissimilarity <= self.anchor_dissimilarity))
         if len(renew):
-            self._anchors = self._anchors.copy()
-            self._anchors[renew] = sample_patches(frame, z[renew], self.window)
+            self._anchor_bank = self._anchor_bank.replace(renew, sample_patches(frame, z[renew], self.window))
             strikes[renew] = 0
         self._anchor_strikes = strikes
 
