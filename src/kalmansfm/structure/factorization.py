@@ -42,6 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
+from ..estimation._checks import as_float_array
 from .lowrank import truncated_svd
 
 __all__ = ["Reconstruction", "factorize", "metric_upgrade"]
@@ -313,10 +314,7 @@ def _quadratic_terms(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    try:
-        x = np.asarray(positions, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"positions must be numeric; could not convert them ({exc})") from None
+    x = as_float_array("positions", positions)
     if x.ndim != 3 or x.shape[2] != 2:
         raise InvalidInputError(f"positions must have shape (frames, points, 2); got {x.shape}")
     frames, points = x.shape[:2]

@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
+from ..estimation._checks import as_float_array
 from ..estimation.kalman import KalmanFilter
 from ..estimation.models import LinearGaussianModel, constant_velocity_2d
 from .detect import detect_corners
@@ -301,10 +302,7 @@ class Tracker:
     # -- validation -------------------------------------------------------------
     @staticmethod
     def _check_points(points: object) -> np.ndarray:
-        try:
-            arr = np.asarray(points, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise InvalidInputError(f"points must be numeric (P, 2) positions; {exc}") from None
+        arr = as_float_array("points", points)
         if arr.ndim != 2 or arr.shape[1] != 2:
             raise InvalidInputError(f"points must have shape (P, 2) as (x, y); got {arr.shape}")
         if not np.isfinite(arr).all():
