@@ -13,6 +13,7 @@ import json
 import logging
 import platform
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -78,23 +79,49 @@ class PipelineResult:
     scene: Scene | None = field(default=None, repr=False)
 
 
-def save_tracking(out: OutputDirectory, tracks: Tracks, frames: list[np.ndarray], *, gif: bool = True) -> None:
-    """Stage the tracker's files: tracks.csv, tracks.npz, covariance_trace.png, tracks.png (and tracks.gif)."""
+def save_tracking(
+    out: OutputDirectory,
+    tracks: Tracks,
+    frames: Iterable[np.ndarray],
+    *,
+    last_frame: np.ndarray | None = None,
+    gif: bool = True,
+) -> None:
+    """Stage the tracker's files: tracks.csv, tracks.npz, covariance_trace.png, tracks.png (and tracks.gif).
+
+    ``frames`` may be a lazily decoded source; then give ``last_frame`` (drawn under
+    the paths in tracks.png) so the frames are not decoded once more just for it.
+    """
     write_tracks_csv(tracks, out.file("tracks.csv"))
     write_tracks_npz(tracks, out.file("tracks.npz"))
     plot_covariance_trace(tracks, out.file("covariance_trace.png"))
-    plot_tracks(tracks, frames[-1], out.file("tracks.png"))
+    plot_tracks(tracks, frames[-1] if last_frame is None else last_frame, out.file("tracks.png"))  # type: ignore[index]
     if gif:
         write_tracks_gif(frames, tracks, out.file("tracks.gif"), gate_radius=tracks.parameters["gate_radius"])
 
 
-def save_structure(out: OutputDirectory, reconstruction: Reconstruction, track_ids: np.ndarray) -> None:
-    """Stage the factorization's files: structure.csv, structure.ply, motion.csv, structure.png."""
+def save_structure(
+    out: OutputDirectory,
+    reconstruction: Reconstruction,
+    track_ids: np.ndarray,
+    *,
+    frames: np.ndarray | None = None,
+    title: str = "Recovered shape",
+    comment: str = "kalmansfm reconstruction",
+    plot: bool = True,
+) -> None:
+    """Stage the factorization's files: structure.csv, structure.ply, motion.csv (and structure.png).
+
+    ``frames`` are the frame numbers written in motion.csv (default 0, 1, …);
+    ``title`` heads the plot and ``comment`` goes into the PLY header.
+    """
     out.write_text("structure.csv", structure_csv(track_ids, reconstruction.points))
-    out.write_text("structure.ply", structure_ply(track_ids, reconstruction.points))
-    frames = np.arange(reconstruction.motion.shape[0])
+    out.write_text("structure.ply", structure_ply(track_ids, reconstruction.points, comment=comment))
+    if frames is None:
+        frames = np.arange(reconstruction.motion.shape[0])
     out.write_text("motion.csv", motion_csv(frames, reconstruction.motion, reconstruction.translation))
-    plot_structure(reconstruction.points, track_ids, out.file("structure.png"))
+    if plot:
+        plot_structure(reconstruction.points, track_ids, out.file("structure.png"), title=title)
 
 
 def factorize_tracks(tracks: Tracks, *, weighted: bool = True) -> Reconstruction:

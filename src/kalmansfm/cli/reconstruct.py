@@ -12,9 +12,7 @@ import numpy as np
 from .. import __version__
 from ..errors import InvalidInputError
 from ..io.atomic import check_output_directory, output_directory
-from ..io.structure import motion_csv, structure_csv, structure_ply
-from ..pipeline import read_tracks_for_factorization
-from ..report.plot_structure import plot_structure
+from ..pipeline import read_tracks_for_factorization, save_structure
 from ..structure.factorization import factorize
 
 log = logging.getLogger("kalmansfm")
@@ -75,11 +73,10 @@ def run(args: argparse.Namespace) -> int:
         "warnings": list(result.warnings),
     }
     with output_directory(args.out) as out:
-        out.write_text("structure.csv", structure_csv(tracks.track_ids, result.points))
-        out.write_text("structure.ply", structure_ply(tracks.track_ids, result.points, comment=f"kalmansfm {__version__} from {args.tracks.name}"))
-        out.write_text("motion.csv", motion_csv(tracks.frames, result.motion, result.translation))
-        if not args.no_plot:
-            plot_structure(result.points, tracks.track_ids, out.file("structure.png"), title=f"Recovered shape: {args.tracks.name}")
+        save_structure(
+            out, result, tracks.track_ids, frames=tracks.frames, title=f"Recovered shape: {args.tracks.name}",
+            comment=f"kalmansfm {__version__} from {args.tracks.name}", plot=not args.no_plot,
+        )
         out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
     shown = np.array2string(result.singular_values[:6], precision=4, separator=", ")
     print(f"frames: {summary['frames']}  tracks: {summary['points']}  method: {result.method}"

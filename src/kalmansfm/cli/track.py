@@ -14,8 +14,8 @@ from .. import __version__
 from ..errors import InvalidInputError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames
-from ..io.tracks import check_points_inside, read_points_csv, write_tracks_csv, write_tracks_npz
-from ..report.plot_tracks import plot_covariance_trace, plot_tracks, write_tracks_gif
+from ..io.tracks import check_points_inside, read_points_csv
+from ..pipeline import save_tracking
 from ..tracking.smoothing import smooth_tracks
 from ..tracking.tracker import track
 
@@ -123,11 +123,7 @@ def run(args: argparse.Namespace) -> int:
         "status_codes": {"0": "no track", "1": "measured", "2": "predicted", "3": "lost"},
     }
     with output_directory(args.out) as out:
-        write_tracks_csv(tracks, out.file("tracks.csv"))
-        write_tracks_npz(tracks, out.file("tracks.npz"))
-        plot_covariance_trace(tracks, out.file("covariance_trace.png"))
-        plot_tracks(tracks, last_frame, out.file("tracks.png"))
-        write_tracks_gif(frames, tracks, out.file("tracks.gif"), gate_radius=tracks.parameters["gate_radius"])
+        save_tracking(out, tracks, frames, last_frame=last_frame)
         out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
     m = summary["metrics"]
     print(
