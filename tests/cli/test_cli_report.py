@@ -1,29 +1,10 @@
-import importlib.util
-import sys
 import json
 from pathlib import Path
 
+import fake_run  # tests/unit/report (see tests/conftest.py)
 import pytest
 
 import kalmansfm.cli.main as cli
-
-
-def _load_fixture_module(name):
-    path = Path(__file__).parents[1] / "unit" / "report" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"_report_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
-fake_run = _load_fixture_module("fake_run")
-
-
-@pytest.fixture(autouse=True)
-def only_report_subcommand(monkeypatch):
-    # other subcommands are built on other branches; this test needs only 'report'
-    monkeypatch.setattr(cli, "SUBCOMMANDS", ["report"])
 
 
 def test_report_rebuilds_the_html_and_prints_its_path(tmp_path, capsys):

@@ -11,9 +11,7 @@ from kalmansfm.report.tables import FusionTable, format_csv
 
 
 @pytest.fixture
-def main(monkeypatch):
-    # Only this subcommand: the test does not depend on the other subcommands' modules.
-    monkeypatch.setattr(cli_main, "SUBCOMMANDS", ["consistency"])
+def main():
     return cli_main.main
 
 

@@ -6,12 +6,6 @@ from kalmansfm.io import read_ground_truth
 from kalmansfm.scenes import render_scene
 
 
-@pytest.fixture(autouse=True)
-def only_scene_subcommand(monkeypatch):
-    # the other subcommands are built elsewhere; this test needs only its own
-    monkeypatch.setattr(cli, "SUBCOMMANDS", ["scene"])
-
-
 def test_writes_frames_and_ground_truth(tmp_path, capsys):
     out = tmp_path / "scene"
     code = cli.main(["scene", "--out", str(out), "--frames", "4", "--size", "160x120", "--seed", "3", "--quiet"])

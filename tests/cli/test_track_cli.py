@@ -11,11 +11,6 @@ from kalmansfm.io.tracks import read_tracks_npz
 from kalmansfm.scenes import render_scene
 
 
-@pytest.fixture(autouse=True)
-def only_track_subcommand(monkeypatch):
-    monkeypatch.setattr(cli, "SUBCOMMANDS", ["track"])
-
-
 @pytest.fixture(scope="module")
 def scene_folder(tmp_path_factory):
     folder = tmp_path_factory.mktemp("scene")

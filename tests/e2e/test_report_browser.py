@@ -12,31 +12,18 @@ than passing silently.
 
 from __future__ import annotations
 
-import importlib.util
 import re
-import sys
 import shutil
 import subprocess
 from pathlib import Path
 
 import cv2
+import fake_run  # tests/unit/report (see tests/conftest.py)
 import numpy as np
 import pytest
+import report_checks
 
 from kalmansfm.report import build_report
-
-
-def _load_fixture_module(name):
-    path = Path(__file__).parents[1] / "unit" / "report" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"_report_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
-fake_run = _load_fixture_module("fake_run")
-report_checks = _load_fixture_module("report_checks")
 
 
 def find_chromium() -> str | None:

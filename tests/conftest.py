@@ -1,0 +1,11 @@
+"""Shared test set-up.
+
+The report's fake run folder (``tests/unit/report/fake_run.py``) and its HTML checks
+(``report_checks.py``) are used by unit, CLI and browser tests alike; their folder
+goes on the import path once, so every test imports them as the same modules.
+"""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent / "unit" / "report"))
