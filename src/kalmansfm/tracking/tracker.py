@@ -33,15 +33,21 @@ because the peak of a template that matches poorly is biased.  ``template_policy
 Identity safety.  A template re-cut at every match can slide onto whatever passes
 over its point (an occluding card, a look-alike marker crossing it), and the
 model's gate (Q = 16 px²) is far wider than the few tenths of a pixel a smoothly
-moving point departs from its prediction.  Three rules keep a track on its own
+moving point departs from its prediction.  Four rules keep a track on its own
 point or end it:
 
 - *innovation plausibility*: every match must satisfy
   ‖z - p⁻‖² ≤ κ² (k + 1) (m + floor²), with m the track's exponentially weighted
   mean squared innovation, k the frames it has coasted and κ = ``max_innovation_ratio``;
-- *re-acquisition by the anchor only*: a coasting track is searched with its anchor
-  and re-acquired only at the trusted level ``anchor_dissimilarity``; its current
-  template then restarts from the anchor;
+- *re-acquisition by the anchor only*: a coasting track is searched with its anchor,
+  and only a match at the trusted level ``anchor_dissimilarity`` can start a
+  re-acquisition;
+- *re-acquisition confirmed over two frames*: that first match is only a candidate
+  (the track stays predicted); the track is measured again when the next frame's
+  match lies where the candidate moved with the track's velocity, within
+  κ √(m + floor²).  A look-alike that crosses the hidden point's gate moves
+  differently and is never taken.  A candidate found on the frame after the last
+  allowed miss gets this one extra frame before the track is lost;
 - *clean anchor renewal*: the anchor is replaced only on a frame where the current
   template's own match is as clean as a trusted anchor's, so a partly hidden
   patch never becomes an anchor.
@@ -143,7 +149,8 @@ class Tracker:
     gate_probability : probability that the true position lies in the gate; c² is
         the χ²₂ quantile (0.95 → c = 2.448).  Ignored when ``gate_radius`` is given.
     gate_radius : the gate's c directly (Mahalanobis radius).
-    max_misses : a track coasts at most this many consecutive frames; the next miss loses it.
+    max_misses : a track coasts at most this many consecutive frames; the next miss loses it
+        (unless that frame holds a re-acquisition candidate, which gets one frame to be confirmed).
     max_dissimilarity : a match is accepted when SSD / Σ(T - T̄)² (``ssd``) or
         1 - NCC (``ncc``) is at most this (default 0.5 for ssd, 0.3 for ncc).  A
         coasting track is searched with its anchor template and re-acquired only at
@@ -294,6 +301,9 @@ class Tracker:
         self._anchor_strikes = np.zeros(0, np.int64)
         self._misses = np.zeros(0, np.int64)
         self._innovation_sq = np.zeros(0)
+        # Re-acquisition candidates (x, y) of coasting tracks, waiting for the next frame's
+        # confirmation; NaN where there is none.
+        self._candidates = np.zeros((0, 2))
         # Tracks started in the previous frame and waiting for their second frame.
         self._pending_ids = np.zeros(0, np.int64)
         self._pending_positions = np.zeros((0, 2))
@@ -437,12 +447,14 @@ class Tracker:
             misses = np.concatenate([self._misses, misses])
             strikes = np.concatenate([self._anchor_strikes, np.zeros(len(states) - len(self._ids), np.int64)])
             innovation_sq = np.concatenate([self._innovation_sq, np.full(len(states) - len(self._ids), _INITIAL_INNOVATION_SQ)])
+            candidates = np.concatenate([self._candidates, np.full((len(states) - len(self._ids), 2), np.nan)])
         else:
             strikes = np.zeros(len(states), np.int64)
             innovation_sq = np.full(len(states), _INITIAL_INNOVATION_SQ)
-        self._set_filter(ids, states, covariances, templates, anchors, misses, strikes, innovation_sq)
+            candidates = np.full((len(states), 2), np.nan)
+        self._set_filter(ids, states, covariances, templates, anchors, misses, strikes, innovation_sq, candidates)
 
-    def _set_filter(self, ids, states, covariances, templates, anchors, misses, strikes, innovation_sq) -> None:  # type: ignore[no-untyped-def]
+    def _set_filter(self, ids, states, covariances, templates, anchors, misses, strikes, innovation_sq, candidates) -> None:  # type: ignore[no-untyped-def]
         m = self.model
         if len(ids):
             shared = bool(np.all(covariances == covariances[:1]))
@@ -453,6 +465,7 @@ class Tracker:
         self._ids, self._templates = ids, templates
         self._anchor_bank = anchors if isinstance(anchors, TemplateSpectra) else TemplateSpectra(anchors)
         self._misses, self._anchor_strikes, self._innovation_sq = misses, strikes, innovation_sq
+        self._candidates = candidates
 
     def _step_filter(self, frame: PreparedFrame) -> _FrameRecord:
         kf = self._kf
@@ -467,18 +480,32 @@ class Tracker:
             # The current template may have caught part of whatever hid the point: a
             # coasting track is searched with its anchor, the last verified appearance.
             search_templates = np.where(coasting[:, None, None], self._anchors, self._templates)
+        search_centres, search_covariances = predicted, prior_P[:, :2, :2]
+        has_candidate = np.isfinite(self._candidates[:, 0])
+        if has_candidate.any():
+            # A re-acquisition candidate is looked for where it should have moved, within
+            # the confirmation radius, not in the coast's grown gate (where a look-alike
+            # may match better than the point itself).
+            radius = self._confirmation_radius()
+            search_centres = np.where(has_candidate[:, None], self._candidates + kf.x_prior[:, 2:], predicted)
+            search_covariances = np.where(
+                has_candidate[:, None, None], np.eye(2) * (radius / self.gate_radius)[:, None, None] ** 2, search_covariances
+            )
         match = match_templates(
-            frame, search_templates, predicted, prior_P[:, :2, :2], self.gate_radius, self.score, self.max_search_radius
+            frame, search_templates, search_centres, search_covariances, self.gate_radius, self.score, self.max_search_radius
         )
         z = match.positions.copy()
         dissimilarity = match.dissimilarity
         found = match.searched & (dissimilarity <= self.max_dissimilarity)
         used = search_templates
+        # A coasting track starts a re-acquisition only with a match at the strict level
+        # (its anchor matching as well as a trusted anchor does, not merely acceptably), so
+        # that it does not latch on to a look-alike in its grown gate; the next frame, whose
+        # match must also lie where that candidate moved, needs only the acceptable level.
+        strict_level = self.anchor_dissimilarity if anchored else self.reacquire_dissimilarity
+        strict = found & (dissimilarity <= strict_level)
         if anchored:
-            # A coasting track is re-acquired only by its anchor, matching as well as a
-            # trusted anchor does (not merely acceptably), so that it does not latch on to
-            # a look-alike in its grown gate.
-            confirmed = coasting & found & (dissimilarity <= self.anchor_dissimilarity)
+            confirmed = coasting & (strict | (found & has_candidate))
             tracking = found & ~coasting
             if tracking.any():
                 z, dissimilarity, agrees = self._anchor_check(frame, z, tracking, dissimilarity)
@@ -486,8 +513,7 @@ class Tracker:
             used = np.where(confirmed[:, None, None], self._anchors, self._templates)
             accepted = confirmed | tracking
         else:
-            threshold = np.where(coasting, self.reacquire_dissimilarity, self.max_dissimilarity)
-            accepted = found & (dissimilarity <= threshold)
+            accepted = np.where(coasting, strict | (found & has_candidate), found)
         # The match must also move as the track has been moving.  Its innovation ‖z - p⁻‖²
         # must stay within κ² (m + floor²), m the track's recent mean squared innovation,
         # κ = max_innovation_ratio.  The model's own gate (Q = 16 px²) is far wider than
@@ -511,6 +537,7 @@ class Tracker:
         good = accepted & plausible
         if self.refine and good.any():
             z[good] = refine_translation(frame, used[good], z[good])
+        good, new_candidate = self._confirm_reacquisitions(z, good, coasting, strict)
         if anchored:
             self._update_anchor_strikes(frame, z, good, good & confirmed, dissimilarity)
         z[~good] = np.nan
@@ -524,7 +551,8 @@ class Tracker:
         )
 
         misses = np.where(good, 0, self._misses + 1)
-        lost = misses > self.max_misses
+        # A candidate found on the last allowed frame gets one more frame to be confirmed.
+        lost = (misses > self.max_misses) & ~(new_candidate & (misses == self.max_misses + 1))
         status = np.where(good, MEASURED, PREDICTED).astype(np.int8)
         status[lost] = LOST
         states = np.array(kf.x)
@@ -537,20 +565,45 @@ class Tracker:
             fresh = sample_patches(frame, z[good], self.window)
             self._templates = self._templates.copy()
             self._templates[good] = fresh
-            if anchored:
-                # A re-acquired track restarts from its anchor: the patch at the re-acquired
-                # point may still hold part of whatever hid it.
-                reacquired = good & coasting
-                self._templates[reacquired] = self._anchors[reacquired]
         self._misses = misses
         if lost.any():
             keep = ~lost
             P_keep = np.broadcast_to(kf.P, (len(self._ids), 4, 4))[keep]
             self._set_filter(
                 self._ids[keep], kf.x[keep], P_keep, self._templates[keep], self._anchor_bank.take(keep),
-                self._misses[keep], self._anchor_strikes[keep], self._innovation_sq[keep],
+                self._misses[keep], self._anchor_strikes[keep], self._innovation_sq[keep], self._candidates[keep],
             )
         return record
+
+    def _confirm_reacquisitions(
+        self, z: np.ndarray, good: np.ndarray, coasting: np.ndarray, strict: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Hold a coasting track's first acceptable match back until the next frame confirms it.
+
+        A match that ends a coast becomes a *candidate*; the track stays predicted in this
+        frame.  In the next frame, a match that lies where the candidate moved with the
+        track's velocity, ‖z - (candidate + v)‖² ≤ κ² (m + floor²), confirms it and the
+        track is measured again.  Anything else (no match, or a match elsewhere) drops the
+        candidate; a new match at the ``strict`` level becomes the next candidate.  A
+        look-alike that passes through the gate once (another marker crossing the hidden
+        one) thus never becomes a measurement: it would have to move as the hidden point
+        moves.
+
+        Returns the accepted matches and where a new candidate was set.
+        """
+        kf = self._kf
+        assert kf is not None  # internal invariant, not user input
+        reacquired = good & coasting
+        expected = self._candidates + kf.x_prior[:, 2:]
+        offset = np.linalg.norm(z - expected, axis=1)
+        confirmed = reacquired & (offset <= self._confirmation_radius())  # False where there was no candidate (NaN)
+        new_candidate = reacquired & ~confirmed & strict
+        self._candidates = np.where(new_candidate[:, None], z, np.nan)
+        return (good & ~coasting) | confirmed, new_candidate
+
+    def _confirmation_radius(self) -> np.ndarray:
+        """κ √(m + floor²) per track: how far a confirming match may lie from where its candidate moved."""
+        return self.max_innovation_ratio * np.sqrt(self._innovation_sq + _INNOVATION_FLOOR_PX**2)
 
     def _anchor_check(
         self, frame: PreparedFrame, z: np.ndarray, tracking: np.ndarray, dissimilarity: np.ndarray

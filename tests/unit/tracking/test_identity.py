@@ -19,7 +19,7 @@ import pytest
 
 from kalmansfm.scenes import Occluder, render_scene
 from kalmansfm.tracking.tracker import track
-from kalmansfm.tracking.tracks import LOST, MEASURED, NO_TRACK
+from kalmansfm.tracking.tracks import LOST, MEASURED, NO_TRACK, PREDICTED
 
 MARKER_HALF_PX = 3.0  # the scene's 6 px markers
 
@@ -70,15 +70,16 @@ def test_hidden_marker_does_not_latch_onto_the_card():
     for seed in range(5):
         scene, tracks, truth, visible = tracked_scene(seed, Occluder())
         assert_no_silent_swap(scene, tracks, truth, visible)
-        # The marker the card was placed for coasts through its 3 frames, then resumes under its
-        # id or ends (when its anchor cannot re-acquire it at a trusted level).
+        # The marker the card was placed for coasts through its 3 frames.  In frame 13 it is
+        # visible again: a trusted anchor match there is only a candidate (predicted), measured
+        # from frame 14 when frame 14 confirms it; otherwise the track ends.
         col = int(np.flatnonzero(tracks.track_ids == 0)[0])
-        after = tracks.status[13:20, col]
-        if (after == MEASURED).all():
+        after = tracks.status[13:20, col].tolist()
+        if after == [PREDICTED] + [MEASURED] * 6:
             resumed += 1
             assert np.linalg.norm(tracks.positions[19, col] - truth[19, col]) < 1.0
         else:
-            assert after[0] == LOST and (after[1:] == NO_TRACK).all()
+            assert after in ([LOST] + [NO_TRACK] * 6, [PREDICTED, LOST] + [NO_TRACK] * 5), after
     assert resumed >= 2  # seeds 3 and 4; on 0-2 the anchor re-matches at 0.31-0.71 > 0.3 and the track ends
 
 
@@ -89,8 +90,13 @@ def test_two_markers_crossing(seed, track_id, n_frames):
     scene, tracks, truth, visible = tracked_scene(seed, occluder)
     assert_no_silent_swap(scene, tracks, truth, visible)
     col = int(np.flatnonzero(tracks.track_ids == track_id)[0])
-    after = slice(10 + n_frames, 10 + n_frames + 4)
-    assert (tracks.status[after, col] == MEASURED).all()
+    # First frame visible again: a re-acquisition candidate if the track coasted (on seed 5 the
+    # one-frame card only grazes the marker, and the track stays measured); measured from the
+    # next frame on.
+    first = 10 + n_frames
+    coasted = bool((tracks.status[10:first, col] == PREDICTED).any())
+    assert coasted == (seed != 5)
+    assert tracks.status[first : first + 5, col].tolist() == [PREDICTED if coasted else MEASURED] + [MEASURED] * 4
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
@@ -136,10 +142,25 @@ def test_an_implausible_jump_is_refused_even_when_the_template_matches():
     plain = track(frames, p0)
     assert (plain.status == MEASURED).all()
     tracks = track(jumped, p0)
-    assert tracks.status[6, 0] != MEASURED
-    assert (tracks.status[7:, 0] == MEASURED).all()
+    # Refused in frame 6; re-acquired (candidate) in frame 7 and confirmed in frame 8.
+    assert tracks.status[6:, 0].tolist() == [PREDICTED, PREDICTED] + [MEASURED] * 2
     assert np.linalg.norm(tracks.positions[-1, 0] - (p0[0] - [9.0, 0.0])) < 0.2
     # With the test switched off (a huge ratio) the same frame is taken 8 px off.
     loose = track(jumped, p0, max_innovation_ratio=1e6)
     assert loose.status[6, 0] == MEASURED
     assert np.linalg.norm(loose.positions[6, 0] - (p0[0] - [6.0, 0.0])) > 3.0
+
+
+def test_a_lookalike_seen_once_does_not_end_a_coast():
+    """Seed 18: while marker 2 is under the card, the card's own marker passes through its grown gate.
+
+    Before re-acquisitions needed a second, consistent frame, that single frame was taken as
+    the hidden marker in frame 12 (4.1 px off, reported as measured, and followed for 4
+    frames). The look-alike moves at +6 px per frame while the hidden marker moves at -2.1,
+    so the candidate it offers is not confirmed in frame 13, and the track ends there.
+    """
+    occluder = Occluder(track_id=2, first_frame=10, n_frames=6, marker=True)
+    scene, tracks, truth, visible = tracked_scene(18, occluder)
+    assert_no_silent_swap(scene, tracks, truth, visible)
+    col = int(np.flatnonzero(tracks.track_ids == 2)[0])
+    assert tracks.status[8:16, col].tolist() == [MEASURED] * 2 + [PREDICTED] * 3 + [LOST] + [NO_TRACK] * 2
