@@ -63,3 +63,12 @@ def check_positive(name: str, value: object, unit: str = "") -> float:
     if not np.isfinite(number) or number <= 0:
         raise InvalidInputError(f"{name} must be finite and > 0{shown}; got {number}")
     return number
+
+
+def check_count(name: str, value: object, minimum: int, error: type[Exception] = InvalidInputError) -> int:
+    """Return ``value`` as an int or raise ``error`` unless it is an integer >= ``minimum`` (bools refused)."""
+    integral = isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer())
+    if isinstance(value, bool) or not integral or value < minimum:  # type: ignore[operator]
+        wanted = "a non-negative integer" if minimum == 0 else f"an integer >= {minimum}"
+        raise error(f"{name} must be {wanted}; got {value!r}")
+    return int(value)  # type: ignore[arg-type]

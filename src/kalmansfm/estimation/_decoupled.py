@@ -269,34 +269,37 @@ def update(
     rb_all = r if B == 2 else r[:1]
     buf = np.empty((8, min(N, CHUNK)), dtype=X.dtype)
     both = np.empty((2, min(N, CHUNK)), dtype=X.dtype)
-    for sl in _chunks(N):
-        k = sl.stop - sl.start
-        t = buf[:, :k]
-        s, g, k0, k1 = t[0], t[1], t[2], t[3]
-        # Y = z - H x⁻, stored with 0 where not measured (the y property puts the NaN back)
-        Ys = np.subtract(z[sl].T, X[0:2, sl], out=Y[:, sl])
-        if any_missing:
-            missing = missing_z[sl].T
-            np.copyto(Ys, 0.0, where=missing)
-        for b in range(B):
-            c = C[b] if C.ndim == 2 else C[b, :, sl]
-            p00, p01, p11 = c[0], c[1], c[2]
-            rb = rb_all[b] if rb_all.ndim == 1 else rb_all[b, sl]
-            np.add(p00, rb, out=s)
-            # g = 1 / s where measured, 0 where not: the gain vanishes and the prior passes through.
-            np.divide(1.0, s, out=g)
+    # A zero s (singular S) gives an infinite gain and NaN in the new covariance, raised as
+    # SingularCovarianceError below without NumPy's divide/invalid warnings before it.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for sl in _chunks(N):
+            k = sl.stop - sl.start
+            t = buf[:, :k]
+            s, g, k0, k1 = t[0], t[1], t[2], t[3]
+            # Y = z - H x⁻, stored with 0 where not measured (the y property puts the NaN back)
+            Ys = np.subtract(z[sl].T, X[0:2, sl], out=Y[:, sl])
             if any_missing:
-                np.copyto(g, 0.0, where=missing[b])
-            np.multiply(p00, g, out=k0)
-            np.multiply(p01, g, out=k1)
-            _block_update_inplace(p00, p01, p11, rb, s, k0, k1, Cn[b, :, sl], t[4:8], joseph)
-            # x = x⁻ + k0 y, v = v⁻ + k1 y (both axes at once when they share the block)
-            rows = slice(b, b + 1) if B == 2 else slice(0, 2)
-            tmp = both[: rows.stop - rows.start, :k]
-            np.multiply(k0, Ys[rows], out=tmp)
-            np.add(X[rows, sl], tmp, out=Xn[rows, sl])
-            np.multiply(k1, Ys[rows], out=tmp)
-            np.add(X[rows.start + 2 : rows.stop + 2, sl], tmp, out=Xn[rows.start + 2 : rows.stop + 2, sl])
+                missing = missing_z[sl].T
+                np.copyto(Ys, 0.0, where=missing)
+            for b in range(B):
+                c = C[b] if C.ndim == 2 else C[b, :, sl]
+                p00, p01, p11 = c[0], c[1], c[2]
+                rb = rb_all[b] if rb_all.ndim == 1 else rb_all[b, sl]
+                np.add(p00, rb, out=s)
+                # g = 1 / s where measured, 0 where not: the gain vanishes and the prior passes through.
+                np.divide(1.0, s, out=g)
+                if any_missing:
+                    np.copyto(g, 0.0, where=missing[b])
+                np.multiply(p00, g, out=k0)
+                np.multiply(p01, g, out=k1)
+                _block_update_inplace(p00, p01, p11, rb, s, k0, k1, Cn[b, :, sl], t[4:8], joseph)
+                # x = x⁻ + k0 y, v = v⁻ + k1 y (both axes at once when they share the block)
+                rows = slice(b, b + 1) if B == 2 else slice(0, 2)
+                tmp = both[: rows.stop - rows.start, :k]
+                np.multiply(k0, Ys[rows], out=tmp)
+                np.add(X[rows, sl], tmp, out=Xn[rows, sl])
+                np.multiply(k1, Ys[rows], out=tmp)
+                np.add(X[rows.start + 2 : rows.stop + 2, sl], tmp, out=Xn[rows.start + 2 : rows.stop + 2, sl])
     if not np.all(np.isfinite(Cn[:, 0])):
         raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
     return Xn, Cn, DecoupledUpdate(C, Y, r, missing_z, N)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InvalidInputError
+from ..estimation._checks import check_count
 from .fusion_tasks import _alternating_yaw_and_forward_step
 
 __all__ = ["CameraPath", "report_path"]
@@ -70,8 +70,7 @@ def report_path(n_frames: int = 25) -> CameraPath:
            [40.017, 40.   , 58.   ],
            [40.209, 40.   , 36.002]])
     """
-    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
-        raise InvalidInputError(f"n_frames must be an integer >= 2; got {n_frames!r}")
+    n_frames = check_count("n_frames", n_frames, 2)
     steps = n_frames - 1
     # The same motion as Task 6 in fusion_tasks (one definition of the path).
     C, b = _alternating_yaw_and_forward_step(steps)

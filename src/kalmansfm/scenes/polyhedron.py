@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
+from ..estimation._checks import check_count
 
 __all__ = ["Occluder", "Scene", "render_scene", "SCENARIOS"]
 
@@ -389,11 +390,9 @@ def render_scene(
     >>> bool(np.allclose(scene.positions[f], scene.scale * scene.points_3d @ R[:2].T + t))
     True
     """
-    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 3:
-        raise NotEnoughDataError(f"n_frames must be an integer >= 3; got {n_frames!r}")
+    n_frames = check_count("n_frames", n_frames, 3, NotEnoughDataError)
     width, height = _check_size(image_size)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InvalidInputError(f"seed must be a non-negative integer; got {seed!r}")
+    seed = check_count("seed", seed, 0)
     if not np.isfinite(pixel_noise_std) or pixel_noise_std < 0:
         raise InvalidInputError(f"pixel_noise_std must be a finite number >= 0; got {pixel_noise_std!r}")
     if scenario not in SCENARIOS:

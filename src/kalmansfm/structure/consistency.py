@@ -31,6 +31,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import InvalidInputError
+from ..estimation._checks import check_count
 from ..estimation.fusion import fuse_recursive
 from ..scenes.fusion_tasks import load_task
 from ..scenes.moving_camera import report_path
@@ -212,11 +213,7 @@ def consistency_from_errors(
 
 
 def _check_runs_seed(runs: object, seed: object) -> tuple[int, int]:
-    if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 2:
-        raise InvalidInputError(f"runs must be an integer >= 2; got {runs!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InvalidInputError(f"seed must be a non-negative integer; got {seed!r}")
-    return int(runs), int(seed)
+    return check_count("runs", runs, 2), check_count("seed", seed, 0)
 
 
 def _chunks(runs: int) -> list[int]:

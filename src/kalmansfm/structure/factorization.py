@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import as_float_array
+from ..estimation._checks import as_float_array, check_count
 from .lowrank import truncated_svd
 
 __all__ = ["Reconstruction", "factorize", "metric_upgrade"]
@@ -152,7 +152,8 @@ def factorize(
     Raises
     ------
     InvalidInputError
-        Wrong shape, infinite values, negative or non-finite weights.
+        Wrong shape, infinite values, negative or non-finite weights, ``max_iterations``
+        below 1 or a negative ``tol``.
     NotEnoughDataError
         Fewer than 3 usable frames or 4 usable points.
 
@@ -169,6 +170,9 @@ def factorize(
     >>> bool(np.allclose(rows, np.eye(2)))
     True
     """
+    max_iterations = check_count("max_iterations", max_iterations, 1)
+    if not (np.isfinite(tol) and tol >= 0):
+        raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
     x, w, observed = _validate(positions, weights)
     frames, points = x.shape[:2]
     if w is not None:

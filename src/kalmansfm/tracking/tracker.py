@@ -65,7 +65,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import as_float_array
+from ..estimation._checks import as_float_array, check_count
 from ..estimation.kalman import KalmanFilter
 from ..estimation.models import LinearGaussianModel, constant_velocity_2d
 from .detect import detect_corners
@@ -80,7 +80,7 @@ from .matching import (
     sample_patches,
 )
 from .smoothing import smooth_tracks
-from .tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks
+from .tracks import LOST, MEASURED, PREDICTED, Tracks
 
 __all__ = ["FrameEstimate", "Tracker", "track"]
 
@@ -224,8 +224,7 @@ class Tracker:
             self.gate_radius = float(gate_radius)
         else:
             self.gate_radius = gate_radius_for_probability(gate_probability)
-        if int(max_misses) != max_misses or max_misses < 0:
-            raise InvalidInputError(f"max_misses must be an integer >= 0; got {max_misses}")
+        max_misses = check_count("max_misses", max_misses, 0)
         if max_search_radius < 2:
             raise InvalidInputError(f"max_search_radius must be >= 2; got {max_search_radius}")
         self.window = int(window)
@@ -239,9 +238,7 @@ class Tracker:
         self.anchor_dissimilarity = (
             DEFAULT_ANCHOR_DISSIMILARITY[score] if anchor_dissimilarity is None else float(anchor_dissimilarity)
         )
-        if int(anchor_patience) != anchor_patience or anchor_patience < 1:
-            raise InvalidInputError(f"anchor_patience must be an integer >= 1; got {anchor_patience}")
-        self.anchor_patience = int(anchor_patience)
+        self.anchor_patience = check_count("anchor_patience", anchor_patience, 1)
         if not (math.isfinite(max_innovation_ratio) and max_innovation_ratio > 0):
             raise InvalidInputError(f"max_innovation_ratio must be a positive number; got {max_innovation_ratio}")
         self.max_innovation_ratio = float(max_innovation_ratio)

@@ -109,7 +109,7 @@ def test_a_singular_innovation_covariance_raises_a_clear_error_general_path():
         kalman_update(np.zeros((2, 4)), P, np.array([[1.0, 1.0], [np.nan, np.nan]]), H, np.zeros((2, 2)))
 
 
-@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning", "ignore:divide by zero:RuntimeWarning")
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # the error alone, no NumPy warning before it
 @pytest.mark.parametrize("shared", [True, False])
 def test_a_singular_innovation_covariance_raises_a_clear_error_decoupled_path(shared):
     # the fast path's kernel (reachable only with zero noise, which the class refuses up front)

@@ -142,6 +142,12 @@ def test_all_nan_is_not_enough_data():
         (np.full((5, 6, 2), np.inf), {}, "finite"),
         (np.zeros((5, 6, 2)), {"weights": -np.ones((5, 6))}, "weights"),
         (np.zeros((5, 6, 2)), {"weights": np.ones((5, 7))}, "weights must have shape"),
+        (np.zeros((5, 6, 2)), {"max_iterations": -5}, r"max_iterations must be an integer >= 1; got -5"),
+        (np.zeros((5, 6, 2)), {"max_iterations": 0}, r"max_iterations must be an integer >= 1; got 0"),
+        (np.zeros((5, 6, 2)), {"max_iterations": 2.5}, r"max_iterations must be an integer >= 1; got 2.5"),
+        (np.zeros((5, 6, 2)), {"max_iterations": True}, r"max_iterations must be an integer >= 1; got True"),
+        (np.zeros((5, 6, 2)), {"tol": -1e-3}, r"tol must be a finite number >= 0"),
+        (np.zeros((5, 6, 2)), {"tol": float("nan")}, r"tol must be a finite number >= 0"),
     ],
 )
 def test_invalid_input(value, kwargs, message):
