@@ -29,7 +29,7 @@ import pytest
 from kalmansfm.cli.main import main
 from kalmansfm.scenes import render_scene
 
-SRC = Path(__file__).resolve().parents[2] / "src"
+SRC = Path(__file__).resolve().parents[1] / "src"
 NOT_WRITABLE = "{d}/a_file.txt/sub"
 
 CASES = [
