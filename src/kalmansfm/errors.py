@@ -13,6 +13,7 @@ __all__ = [
     "InvalidInputError",
     "NotEnoughDataError",
     "SingularCovarianceError",
+    "ReportInterrupted",
     "KalmanSfmWarning",
 ]
 
@@ -31,6 +32,13 @@ class NotEnoughDataError(InvalidInputError):
 
 class SingularCovarianceError(KalmanSfmError, ArithmeticError):
     """A covariance that must be positive definite is not (e.g. the innovation covariance)."""
+
+
+class ReportInterrupted(KeyboardInterrupt):
+    """Ctrl-C while ``report.html`` was being built, after the run's results were written.
+
+    The message says what is on disk: the new results, and no report.
+    """
 
 
 class KalmanSfmWarning(UserWarning):

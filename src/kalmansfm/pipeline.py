@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from . import __version__
-from .errors import InvalidInputError, NotEnoughDataError
+from .errors import InvalidInputError, NotEnoughDataError, ReportInterrupted
 from .io.atomic import OutputDirectory, check_output_directory, output_directory
 from .io.ground_truth import frame_name, scene_files
 from .io.npz import load_npz
@@ -447,11 +447,19 @@ def run_pipeline(
         out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
 
     report = None
+    # An earlier run's report describes results that were just replaced: remove it, so that
+    # an interrupt while the new one is built leaves no report rather than a wrong one.
+    (Path(out_dir) / "report.html").unlink(missing_ok=True)
     if html:
         from .report.html import build_report
 
         t0 = time.perf_counter()
-        report = build_report(out_dir, progress=progress)
+        try:
+            report = build_report(out_dir, progress=progress)
+        except KeyboardInterrupt:
+            raise ReportInterrupted(
+                f"the new results are in {out_dir}, without report.html; run 'kalmansfm report {out_dir}'"
+            ) from None
         timings["report_s"] = time.perf_counter() - t0
         timings["total_s"] = time.perf_counter() - started
         # record the report time too (summary.json is rewritten atomically)

@@ -134,3 +134,23 @@ def test_sigint_to_a_real_process_while_it_writes(run_folder, tmp_path):
     assert "Traceback" not in err
     assert err.rstrip("\n").splitlines()[-1] == "kalmansfm demo: interrupted; earlier results were left as they were"
     assert _snapshot(run_folder) == before
+
+
+def test_ctrl_c_while_the_report_is_built_leaves_the_new_results_and_no_stale_report(run_folder, monkeypatch, capsys):
+    """The results are committed before report.html is built; the earlier report must not stay beside them."""
+    from kalmansfm.report import html
+
+    (run_folder / "report.html").write_text("<html>the earlier run's report</html>")
+    before = _snapshot(run_folder)
+    monkeypatch.setattr(html, "build_report", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    code = main(["demo", "--out", str(run_folder), "--frames", "5", "--seed", "1", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 130
+    assert err.splitlines() == [
+        f"kalmansfm demo: interrupted; the new results are in {run_folder}, without report.html; "
+        f"run 'kalmansfm report {run_folder}'"
+    ]
+    after = _snapshot(run_folder)
+    assert "report.html" not in after
+    assert after["tracks.csv"] != before["tracks.csv"]  # 5 frames now, 8 before
+    assert not [name for name in after if ".tmp" in name or name.startswith(".")]

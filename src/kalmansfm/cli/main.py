@@ -18,7 +18,7 @@ import sys
 from collections.abc import Sequence
 
 from .. import __version__
-from ..errors import KalmanSfmError
+from ..errors import KalmanSfmError, ReportInterrupted
 
 # Order shown in --help.
 SUBCOMMANDS = ["demo", "track", "reconstruct", "report", "batch", "tables", "consistency", "scene"]
@@ -97,8 +97,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
         print(f"{prog}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted; earlier results were left as they were", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        what = str(exc) if isinstance(exc, ReportInterrupted) else "earlier results were left as they were"
+        print(f"{prog}: interrupted; {what}", file=sys.stderr)
         return 130
     except Exception as exc:  # a bug, not a user mistake
         if args.debug:
