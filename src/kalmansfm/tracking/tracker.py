@@ -575,7 +575,7 @@ class Tracker:
     def _confirm_reacquisitions(
         self, z: np.ndarray, good: np.ndarray, coasting: np.ndarray, strict: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Hold a coasting track's first acceptable match back until the next frame confirms it.
+        """Hold a coasting track's first trusted match back until the next frame confirms it.
 
         A match that ends a coast becomes a *candidate*; the track stays predicted in this
         frame.  In the next frame, a match that lies where the candidate moved with the
