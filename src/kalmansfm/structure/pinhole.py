@@ -52,6 +52,7 @@ __all__ = [
     "RefinedPoints",
     "Triangulation",
     "decompose_projection",
+    "project_each",
     "project_points",
     "projection_jacobians",
     "refine_points",
@@ -383,13 +384,42 @@ def project_points(cameras: CameraSet | np.ndarray, points: object) -> Projectio
 
 def _project_jacobian(P: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixels (V, N, 2), projective depth w (V, N) and d pixel / d X (V, N, 2, 3); no validation."""
-    M = P[:, :, :3]
-    uvw = np.einsum("vij,nj->vni", M, X) + P[:, None, :, 3]
+    return project_each(P[:, None], X[None])
+
+
+def project_each(matrices: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Project points by their own cameras, with the Jacobian; shapes broadcast, nothing is validated.
+
+    The kernel behind :func:`project_points` and :func:`projection_jacobians`, for
+    callers that pair every point with a different 3 × 4 matrix (e.g. a camera
+    composed with a per-point change of coordinates such as inverse depth).  The
+    left block of the matrices may be singular here.
+
+    Parameters
+    ----------
+    matrices : (..., 3, 4) float64.
+    points : (..., 3) float64, broadcast against ``matrices[..., 0, :3]``.
+
+    Returns
+    -------
+    pixels : (..., 2) — (u / w, v / w).
+    projective_depths : (..., ) — w.
+    jacobians : (..., 2, 3) — d(x, y)/dX = [m1 - x m3; m2 - y m3] / w.
+
+    Examples
+    --------
+    >>> P = np.hstack([np.diag([100.0, 100.0, 1.0]), np.zeros((3, 1))])
+    >>> pix, w, J = project_each(P, np.array([1.0, 2.0, 4.0]))
+    >>> pix.tolist(), float(w), J[0].tolist()
+    ([25.0, 50.0], 4.0, [25.0, 0.0, -6.25])
+    """
+    M = matrices[..., :3]
+    uvw = np.einsum("...ij,...j->...i", M, points) + matrices[..., 3]
     w = uvw[..., 2]
     w_safe = np.where(w == 0, np.finfo(float).tiny, w)
     pix = uvw[..., :2] / w_safe[..., None]
     # d(u/w)/dX = (m1 - x m3) / w, d(v/w)/dX = (m2 - y m3) / w
-    J = (M[:, None, :2, :] - pix[..., :, None] * M[:, None, 2:3, :]) / w_safe[..., None, None]
+    J = (M[..., :2, :] - pix[..., :, None] * M[..., 2:3, :]) / w_safe[..., None, None]
     return pix, w, J
 
 

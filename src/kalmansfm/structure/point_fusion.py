@@ -1,0 +1,887 @@
+"""Structure fusion with known cameras: every point's 3-D position and covariance, refined view by view.
+
+Thomas & Oliensis, *Fusing Structure by Kalman Filtering* (``004_cd423c68da9c9743.txt``)
+fuse each new view's information about a point into its running estimate.  Here
+the cameras are known 3 × 4 projection matrices (:class:`~.pinhole.CameraSet`)
+and the points are independent given them, so everything is batched over points
+and processed in chunks of points.
+
+Methods
+-------
+``recursive`` (the paper's Kalman fusion, default)
+    Each point's state is its *inverse depth* in the first view that sees it
+    (the anchor): θ = (α, β, ρ) with X = C_a + o R_aᵀ (α, β, 1) / ρ, C_a and R_a
+    the anchor's centre and rotation and o the scene orientation (+1, or -1 for
+    a mirrored reconstruction).  Its homogeneous point is linear in θ, X̃ = H_a θ̃,
+    so view v acts on θ as the 3 × 4 matrix P_v H_a: the projection is a ratio of
+    affine functions of θ, far more linear than in (X, Y, Z), and the state stays
+    valid when the depth is barely determined (ρ near or below zero).  A point
+    starts at its first two usable views (Gauss–Newton on their four
+    coordinates from a linear start; covariance σ² (JᵀJ)⁻¹); every further view
+    is an iterated extended Kalman update on its 2-D projection (each iteration
+    is :func:`~kalmansfm.estimation.kalman.kalman_update` with the model
+    linearised at the current iterate).  All points seen in a view are updated
+    at once.  The estimate and covariance in (X, Y, Z) are the first-order image
+    of θ's.
+``batch`` (the reference)
+    Per point, maximum likelihood over all its views: linear triangulation, then
+    Gauss–Newton in (X, Y, Z) (:func:`~.pinhole.refine_points`).
+``pairs`` (the report's scheme, over-confident)
+    Consecutive observations of a point, two views at a time, are triangulated by
+    the report's midpoint (:func:`~.triangulation.triangulate_midpoint`) with
+    first-order covariance and fused as independent measurements.  Consecutive
+    pairs share an image and the covariances are evaluated at noisy points: kept
+    for fidelity to the report, documented as over-confident.
+
+Outliers
+--------
+An observation is tested before it is used, with σ the pixel noise:
+
+* a further view (recursive): the innovation ν = z - h(θ̂) with S = H P Hᵀ + σ² I;
+  νᵀ S⁻¹ ν beyond the χ²(2) quantile of ``outlier_probability`` → rejected;
+* the first pair of a point (recursive): its Gauss–Newton residual (1 degree of
+  freedom) beyond the χ²(1) quantile → the older observation is rejected and the
+  point starts again from the newer one;
+* batch: the leave-one-out residual of every observation, rᵀ (σ² (I - J N⁻¹ Jᵀ))⁻¹ r,
+  worst first, one per point per round, until all pass; a two-view point whose
+  residual fails the χ²(1) test loses both observations.
+``pairs`` rejects nothing (the report's scheme has no outlier test).
+
+Pixel noise
+-----------
+``pixel_std="auto"`` estimates σ from the residuals with the degrees of freedom
+counted: σ² = Σ |r|² / (2 n_observations - 3 n_points) over the fused points and
+their accepted observations.  It starts from a robust value (the median squared
+residual of an ungated pass) and alternates gating and re-estimation until σ
+changes by less than 0.5 %.  Estimates given fixed gating decisions do not depend
+on σ (every covariance scales with σ²), so the state is kept at unit σ and the
+covariances are scaled by the final σ².
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from ..errors import InvalidInputError, NotEnoughDataError
+from ..estimation._checks import as_float_array, check_count, check_positive
+from ..estimation.kalman import kalman_update
+from .pinhole import (
+    CameraSet,
+    PointStatus,
+    decompose_projection,
+    project_each,
+    project_points,
+    projection_jacobians,
+    refine_points,
+    triangulate_points,
+)
+from .triangulation import TRIANGULATION_PARALLEL_RAYS, triangulate_midpoint
+
+__all__ = [
+    "DEFAULT_CHUNK_POINTS",
+    "DEFAULT_OUTLIER_PROBABILITY",
+    "FUSION_METHODS",
+    "FusedStructure",
+    "FusionHistory",
+    "FusionSettings",
+    "fuse",
+]
+
+FUSION_METHODS = ("recursive", "batch", "pairs")
+DEFAULT_OUTLIER_PROBABILITY = 0.999
+DEFAULT_CHUNK_POINTS = 65_536
+
+# Iterated EKF: at most this many relinearisations; stop when no component moves more than
+# _IEKF_TOLERANCE of its own standard deviation.
+_IEKF_ITERATIONS = 10
+_IEKF_TOLERANCE = 1e-8
+# Gauss–Newton iterations of the two-view start.
+_START_ITERATIONS = 20
+# A two-view (unit-σ) normal matrix more ill-conditioned than this carries no depth at all.
+_MAX_CONDITION = 1e14
+# Auto σ: stop re-estimating when it changes by less than this fraction; at most this many passes.
+_SIGMA_TOLERANCE = 5e-3
+_MAX_SIGMA_PASSES = 8
+# Points used to decide the scene orientation (the sign of the depths most points agree on).
+_ORIENTATION_SAMPLE = 20_000
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """How :func:`fuse` runs; validated on construction.
+
+    Attributes
+    ----------
+    method : ``"recursive"``, ``"batch"`` or ``"pairs"``.
+    pixel_std : float > 0 in pixels, or None to estimate it (``"auto"``).
+    outlier_probability : in (0, 1]; the gate is the χ² quantile of this probability
+        (1 turns outlier rejection off).
+    history : keep every point's estimate after every view that observed it.
+    chunk_points : points processed together (bounds the memory).
+    """
+
+    method: str = "recursive"
+    pixel_std: float | None = None
+    outlier_probability: float = DEFAULT_OUTLIER_PROBABILITY
+    history: bool = False
+    chunk_points: int = DEFAULT_CHUNK_POINTS
+
+    def __post_init__(self) -> None:
+        if self.method not in FUSION_METHODS:
+            raise InvalidInputError(f"method must be one of {', '.join(FUSION_METHODS)}; got {self.method!r}")
+        if self.pixel_std is not None:
+            object.__setattr__(self, "pixel_std", check_positive("pixel_std", self.pixel_std, "pixels"))
+        try:
+            p = float(self.outlier_probability)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"outlier_probability must be a number in (0, 1]; got "
+                                    f"{self.outlier_probability!r}") from None
+        if not 0.0 < p <= 1.0:
+            raise InvalidInputError(f"outlier_probability must be in (0, 1]; got {p}")
+        object.__setattr__(self, "outlier_probability", p)
+        object.__setattr__(self, "chunk_points", check_count("chunk_points", self.chunk_points, 1))
+        object.__setattr__(self, "history", bool(self.history))
+
+    @property
+    def gate2(self) -> float:
+        """χ²(2) quantile of ``outlier_probability`` (inf when 1)."""
+        return float(stats.chi2.ppf(self.outlier_probability, 2)) if self.outlier_probability < 1 else np.inf
+
+    @property
+    def gate1(self) -> float:
+        """χ²(1) quantile of ``outlier_probability`` (inf when 1)."""
+        return float(stats.chi2.ppf(self.outlier_probability, 1)) if self.outlier_probability < 1 else np.inf
+
+
+@dataclass(frozen=True)
+class FusionHistory:
+    """Each point's estimate after every view that observed it, from its second view on.
+
+    Entries are sorted by view, then point.
+
+    Attributes
+    ----------
+    views : (H,) int64 — view index (into the cameras) after which the estimate holds.
+    points : (H,) int64 — point index.
+    estimates : (H, 3) — NaN where the estimate has no finite (X, Y, Z) yet (depth undetermined).
+    covariances : (H, 3, 3).
+    """
+
+    views: np.ndarray
+    points: np.ndarray
+    estimates: np.ndarray
+    covariances: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.views.shape[0])
+
+    def dense(self, n_views: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+        """(V, N, 3) estimates and (V, N, 3, 3) covariances, NaN where the history has no entry."""
+        X = np.full((n_views, n_points, 3), np.nan)
+        C = np.full((n_views, n_points, 3, 3), np.nan)
+        X[self.views, self.points] = self.estimates
+        C[self.views, self.points] = self.covariances
+        return X, C
+
+    def first(self) -> FusionHistory:
+        """The first entry of every point (its two-view estimate for ``recursive``)."""
+        order = np.lexsort((self.views, self.points))
+        pts = self.points[order]
+        keep = order[np.r_[True, pts[1:] != pts[:-1]]] if pts.size else order
+        return FusionHistory(self.views[keep], self.points[keep], self.estimates[keep], self.covariances[keep])
+
+
+@dataclass(frozen=True)
+class FusedStructure:
+    """Fused 3-D points with covariances, from known cameras.
+
+    Attributes
+    ----------
+    method : the method used.
+    points : (N, 3) — NaN where the status is not OK.
+    covariances : (N, 3, 3) — NaN where the status is not OK.
+    status : (N,) int8 — :class:`~.pinhole.PointStatus` values.
+    views : (N,) int — observations used (accepted) per point.
+    reprojection_rms : (N,) — RMS reprojection error (pixels) over the accepted observations.
+    residuals : (V, N) — length of each observation's reprojection error at the final
+        estimate (pixels), rejected ones included; NaN where not observed or the point
+        has no estimate.
+    rejected : (V, N) bool — observations rejected as outliers.
+    pixel_std : σ (pixels) the covariances are scaled with.
+    pixel_std_estimated : σ was estimated from the residuals (``"auto"``).
+    degrees_of_freedom : 2 × accepted observations - 3 × fused points.
+    orientation : +1, or -1 for a mirrored reconstruction (points at negative depth).
+    passes : passes over the data (more than 1 when σ was estimated).
+    history : :class:`FusionHistory` or None (only when asked for).
+    """
+
+    method: str
+    points: np.ndarray
+    covariances: np.ndarray
+    status: np.ndarray
+    views: np.ndarray
+    reprojection_rms: np.ndarray
+    residuals: np.ndarray
+    rejected: np.ndarray
+    pixel_std: float
+    pixel_std_estimated: bool
+    degrees_of_freedom: int
+    orientation: int
+    passes: int
+    history: FusionHistory | None = field(default=None)
+
+    @property
+    def fused(self) -> np.ndarray:
+        """(N,) bool — points with an estimate (status OK)."""
+        return self.status == PointStatus.OK
+
+    @property
+    def standard_deviations(self) -> np.ndarray:
+        """(N, 3) per-axis standard deviations."""
+        return np.sqrt(np.diagonal(self.covariances, axis1=-2, axis2=-1))
+
+    def status_counts(self) -> dict[str, int]:
+        """Points per status label."""
+        return {s.label: int(np.count_nonzero(self.status == s)) for s in PointStatus}
+
+
+# ---------------------------------------------------------------------------------------------
+# Inverse depth anchored at a view.
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """Per-view quantities shared by every chunk."""
+
+    P: np.ndarray  # (V, 3, 4)
+    K_inv: np.ndarray  # (V, 3, 3)
+    R: np.ndarray  # (V, 3, 3) det +1
+    t: np.ndarray  # (V, 3)
+    C: np.ndarray  # (V, 3) centres
+    orientation: int
+    Q: np.ndarray  # (V anchor, V, 3, 4): P_v H_a, the cameras acting on (α, β, ρ, 1)
+
+
+def _geometry(P: np.ndarray, orientation: int) -> _Geometry:
+    pose = decompose_projection(P)
+    R, C, o = pose.rotations, pose.centers, orientation
+    V = P.shape[0]
+    # X̃ = H_a (α, β, ρ, 1) with X = C_a + o R_aᵀ (α, β, 1) / ρ:
+    # columns α, β, 1 → (o R_aᵀ e_i, 0) and ρ → (C_a, 1).
+    H = np.zeros((V, 4, 4))
+    Rt = np.swapaxes(R, 1, 2)
+    H[:, :3, 0], H[:, :3, 1], H[:, :3, 3] = o * Rt[:, :, 0], o * Rt[:, :, 1], o * Rt[:, :, 2]
+    H[:, :3, 2], H[:, 3, 2] = C, 1.0
+    Q = np.einsum("vij,ajk->avik", P, H)
+    return _Geometry(P, np.linalg.inv(pose.intrinsics), R, pose.translations, C, o, Q)
+
+
+def _theta_to_point(g: _Geometry, anchor: np.ndarray, theta: np.ndarray, cov: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(X, Y, Z) and its covariance from inverse depth, by second-order propagation; NaN where ρ <= 0.
+
+    In the anchor's oriented frame the point is Y = (α, β, 1) / ρ, and X = C_a + o R_aᵀ Y.
+    With G = dY/dθ and H_i the Hessian of Y_i, the Gaussian N(θ̂, P) maps to
+
+        mean_i = Y_i(θ̂) + ½ tr(H_i P),    cov = G P Gᵀ + ½ [tr(H_i P H_j P)]_ij
+
+    (the first-order image alone is over-confident when σ_ρ / ρ is not small: the
+    depth 1/ρ is skewed towards the far side).  Both terms vanish to first order
+    as P → 0, where this is the ordinary linearisation.
+    """
+    a, b, rho = theta[:, 0], theta[:, 1], theta[:, 2]
+    ok = rho > 0
+    r = np.where(ok, rho, 1.0)
+    n = theta.shape[0]
+    G = np.zeros((n, 3, 3))
+    G[:, 0, 0] = G[:, 1, 1] = 1.0 / r
+    G[:, 0, 2], G[:, 1, 2], G[:, 2, 2] = -a / r**2, -b / r**2, -1.0 / r**2
+    Hs = np.zeros((n, 3, 3, 3))  # Hs[:, i] = d²Y_i / dθ²
+    Hs[:, 0, 0, 2] = Hs[:, 0, 2, 0] = Hs[:, 1, 1, 2] = Hs[:, 1, 2, 1] = -1.0 / r**2
+    Hs[:, 0, 2, 2], Hs[:, 1, 2, 2], Hs[:, 2, 2, 2] = 2 * a / r**3, 2 * b / r**3, 2.0 / r**3
+    HP = Hs @ cov[:, None]
+    Y = np.stack([a, b, np.ones_like(a)], axis=1) / r[:, None] + 0.5 * np.trace(HP, axis1=2, axis2=3)
+    cov_Y = G @ cov @ np.swapaxes(G, 1, 2) + 0.5 * np.einsum("niab,njba->nij", HP, HP)
+    Rt = np.swapaxes(g.R[anchor], 1, 2)
+    X = g.C[anchor] + g.orientation * np.einsum("nij,nj->ni", Rt, Y)
+    cov_X = Rt @ cov_Y @ np.swapaxes(Rt, 1, 2)
+    X[~ok], cov_X[~ok] = np.nan, np.nan
+    return X, cov_X
+
+
+def _start_pairs(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Two-view start in inverse depth anchored at view a: θ, unit-σ covariance, cost (px²), usable."""
+    n = xa.shape[0]
+    # (α, β, 1) ∝ K_a⁻¹ x̃_a: the anchor view fixes the ray, whatever the depth
+    m = np.concatenate([xa, np.ones((n, 1))], axis=1) @ g.K_inv[a].T
+    m = m / m[:, 2:3]
+    # ρ from view v with (α, β) fixed: x (q3·θ̃) - q1·θ̃ = 0 is linear in ρ, least squares over its 2 rows
+    Qv = g.Q[a, v]
+    base = np.concatenate([m[:, :2], np.zeros((n, 1)), np.ones((n, 1))], axis=1)  # θ̃ with ρ = 0
+    u0 = base @ Qv.T  # (n, 3)
+    du = Qv[:, 2]  # d(u, v, w)/dρ
+    A = xv * du[2] - du[:2]  # (n, 2)
+    rhs = -(xv * u0[:, 2:3] - u0[:, :2])
+    denom = np.einsum("ni,ni->n", A, A)
+    rho = np.where(denom > 0, np.einsum("ni,ni->n", A, rhs) / np.where(denom > 0, denom, 1.0), 0.0)
+    theta = np.concatenate([m[:, :2], rho[:, None]], axis=1)
+    cams = np.stack([g.Q[a, a], Qv])  # (2, 3, 4)
+    obs = np.stack([xa, xv])  # (2, n, 2)
+
+    def normal_equations(th: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        pix, _, J = project_each(cams[:, None], th[None])
+        r = o - pix
+        return (np.einsum("vnai,vnaj->nij", J, J), np.einsum("vnai,vna->ni", J, r),
+                np.einsum("vna,vna->n", r, r))
+
+    N, g_, cost = normal_equations(theta, obs)
+    active = np.ones(n, dtype=bool)
+    for _ in range(_START_ITERATIONS):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        step = _solve_ridged(N[idx], g_[idx])
+        trial = theta[idx] + step
+        Nt, gt, ct = normal_equations(trial, obs[:, idx])
+        better = np.isfinite(ct) & (ct <= cost[idx])
+        acc = idx[better]
+        theta[acc], N[acc], g_[acc], cost[acc] = trial[better], Nt[better], gt[better], ct[better]
+        small = np.abs(step) <= _IEKF_TOLERANCE * np.sqrt(np.abs(np.diagonal(_inv_ridged(N[idx]), axis1=1, axis2=2)))
+        active[idx] = better & ~small.all(axis=1)
+    evals = np.linalg.eigvalsh(N)
+    usable = np.isfinite(evals).all(axis=1) & (evals[:, 0] > evals[:, 2] / _MAX_CONDITION) & np.isfinite(theta).all(1)
+    cov = np.full((n, 3, 3), np.nan)
+    cov[usable] = np.linalg.inv(N[usable])
+    return theta, cov, cost, usable
+
+
+def _solve_ridged(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ridge = 1e-14 * np.trace(A, axis1=1, axis2=2) + np.finfo(float).tiny
+    return np.linalg.solve(A + ridge[:, None, None] * np.eye(3), b[..., None])[..., 0]
+
+
+def _inv_ridged(A: np.ndarray) -> np.ndarray:
+    ridge = 1e-14 * np.trace(A, axis1=1, axis2=2) + np.finfo(float).tiny
+    return np.linalg.inv(A + ridge[:, None, None] * np.eye(3))
+
+
+def _iterated_update(Q: np.ndarray, prior: np.ndarray, P: np.ndarray, z: np.ndarray, sigma: float, gate: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gated iterated EKF update of unit-σ states by one 2-D projection each.
+
+    Returns the posterior θ and covariance (the prior where rejected), the
+    normalised innovation squared νᵀ S⁻¹ ν at the prior (in units of σ²) and the
+    accepted mask.
+    """
+    eye2 = np.eye(2)
+    pix, _, H = project_each(Q, prior)
+    # The first iterate is the ordinary EKF update; its innovation decides the gate.
+    first = kalman_update(prior, P, z - pix + np.einsum("nij,nj->ni", H, prior), H, eye2)
+    nis = first.nis / sigma**2
+    accept = nis <= gate
+    theta, cov = prior.copy(), P.copy()
+    theta[accept], cov[accept] = first.x[accept], first.P[accept]
+    # Relinearise at the latest iterate: θ_{i+1} = θ̂ + K_i (z - h(θ_i) - H_i (θ̂ - θ_i)),
+    # one kalman_update with the pseudo-measurement z - h(θ_i) + H_i θ_i.
+    active = np.flatnonzero(accept)
+    for _ in range(_IEKF_ITERATIONS - 1):
+        if active.size == 0:
+            break
+        pix, _, H = project_each(Q[active], theta[active])
+        z_lin = z[active] - pix + np.einsum("nij,nj->ni", H, theta[active])
+        res = kalman_update(prior[active], P[active], z_lin, H, eye2)
+        moved = np.abs(res.x - theta[active]) > _IEKF_TOLERANCE * np.sqrt(
+            np.abs(np.diagonal(res.P, axis1=1, axis2=2)))
+        theta[active], cov[active] = res.x, res.P
+        active = active[moved.any(axis=1)]
+    return theta, cov, nis, accept
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """One chunk's job (picklable, so an executor can run it elsewhere)."""
+
+    method: str
+    geometry: _Geometry
+    observations: np.ndarray  # (V, n, 2)
+    sigma: float  # pixel σ the gates use
+    gate2: float
+    gate1: float
+    history: bool
+
+
+@dataclass(frozen=True)
+class _ChunkResult:
+    points: np.ndarray  # (n, 3)
+    covariances: np.ndarray  # (n, 3, 3), unit σ
+    status: np.ndarray
+    used: np.ndarray  # (V, n) bool accepted observations
+    rejected: np.ndarray  # (V, n) bool
+    residuals: np.ndarray  # (V, n, 2) observed - projected, NaN where unseen or no estimate
+    history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None  # views, local points, X, cov (unit σ)
+    anchors: np.ndarray | None = None  # (n,) for states in inverse depth: points/covariances hold θ and its P
+
+
+def _recursive(job: _Chunk) -> _ChunkResult:
+    g, obs = job.geometry, job.observations
+    V, n, _ = obs.shape
+    seen_all = np.isfinite(obs).all(axis=2)
+    theta = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    anchor = np.full(n, -1)
+    pending = np.full(n, -1)
+    started = np.zeros(n, dtype=bool)
+    used = np.zeros((V, n), dtype=bool)
+    rejected = np.zeros((V, n), dtype=bool)
+    stalled = np.zeros(n, dtype=bool)  # a pair without parallax was met
+    hist: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+    for v in range(V):
+        seen = seen_all[v]
+        # further views: gated iterated EKF update, all points at once
+        idx = np.flatnonzero(seen & started)
+        if idx.size:
+            th, P, _, ok = _iterated_update(g.Q[anchor[idx], v], theta[idx], cov[idx], obs[v, idx],
+                                            job.sigma, job.gate2)
+            theta[idx], cov[idx] = th, P
+            used[v, idx[ok]] = True
+            rejected[v, idx[~ok]] = True
+            if job.history:
+                hist.append((v, idx[ok], th[ok], P[ok]))
+        # second usable view: start from the pair (pending anchor, v)
+        idx = np.flatnonzero(seen & ~started & (pending >= 0))
+        for a in np.unique(pending[idx]):
+            sel = idx[pending[idx] == a]
+            th, P, cost, usable = _start_pairs(g, int(a), v, obs[a, sel], obs[v, sel])
+            stalled[sel[~usable]] = True  # no parallax with the anchor: wait for another view
+            consistent = usable & (cost / job.sigma**2 <= job.gate1)
+            go = sel[consistent]
+            theta[go], cov[go], anchor[go], started[go] = th[consistent], P[consistent], a, True
+            used[a, go] = used[v, go] = True
+            # an inconsistent pair: the older observation goes, the point restarts from the newer one
+            bad = sel[usable & ~consistent]
+            rejected[a, bad] = True
+            pending[bad] = v
+            if job.history and go.size:
+                hist.append((v, go, th[consistent], P[consistent]))
+        # first usable view: it becomes the pending anchor
+        pending[seen & ~started & (pending < 0)] = v
+
+    X, _ = _theta_to_point(g, np.maximum(anchor, 0), np.where(started[:, None], theta, np.nan),
+                           cov * job.sigma**2)
+    status = np.full(n, PointStatus.OK, dtype=np.int8)
+    status[~started] = np.where(stalled[~started], PointStatus.DEGENERATE, PointStatus.TOO_FEW_VIEWS)
+    rho_std = np.sqrt(np.abs(cov[:, 2, 2]))
+    no_depth = started & ~(theta[:, 2] > 0)
+    status[no_depth] = np.where(theta[no_depth, 2] + 3 * rho_std[no_depth] < 0, PointStatus.BEHIND_CAMERA,
+                                PointStatus.DEGENERATE)
+    # residuals from θ directly (valid whatever the sign of ρ)
+    pix, _, _ = project_each(g.Q[np.maximum(anchor, 0)].transpose(1, 0, 2, 3), theta[None])
+    residuals = np.where((seen_all & started)[..., None], obs - pix, np.nan)
+    depth = project_points(g.P, np.where(status[:, None] == PointStatus.OK, X, 0.0)).depths
+    behind = np.any(used & (depth * g.orientation <= 0), axis=0) & (status == PointStatus.OK)
+    status[behind] = PointStatus.BEHIND_CAMERA
+    # The state goes out in inverse depth: its (X, Y, Z) image depends on σ (second-order terms), known later.
+    return _finish(theta, cov, status, used, rejected, residuals,
+                   _concat_history(hist) if job.history else None, anchor)
+
+
+def _finish(X, C, status, used, rejected, residuals, history, anchors=None) -> _ChunkResult:
+    ok = status == PointStatus.OK
+    X = np.where(ok[:, None], X, np.nan)
+    C = np.where(ok[:, None, None], C, np.nan)
+    residuals = np.where(ok[None, :, None], residuals, np.nan)
+    return _ChunkResult(X, C, status, used & ok, rejected, residuals, history, anchors)
+
+
+def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(V, n) rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r of each used observation (unit σ), NaN elsewhere."""
+    J = projection_jacobians(P, X)
+    J = np.where(mask[..., None, None], J, 0.0)
+    N_inv = _inv_ridged(np.einsum("vnai,vnaj->nij", J, J))
+    hat = np.einsum("vnai,nij,vnbj->vnab", J, N_inv, J)
+    A = np.eye(2) - hat
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
+    det = np.where(mask & (det > 1e-12), det, np.nan)
+    # 2 × 2 inverse quadratic form: rᵀ adj(A) r / det(A)
+    q = (A[..., 1, 1] * r[..., 0] ** 2 - (A[..., 0, 1] + A[..., 1, 0]) * r[..., 0] * r[..., 1]
+         + A[..., 0, 0] * r[..., 1] ** 2)
+    return q / det
+
+
+def _batch_fit(P: np.ndarray, obs: np.ndarray, mask: np.ndarray, start: np.ndarray | None, orientation: int):
+    if start is None:
+        start = triangulate_points(P, obs, visible=mask, orientation=orientation).points
+    return refine_points(P, obs, start, visible=mask, pixel_std=1.0, orientation=orientation)
+
+
+def _batch(job: _Chunk) -> _ChunkResult:
+    g, obs = job.geometry, job.observations
+    V, n, _ = obs.shape
+    mask = np.isfinite(obs).all(axis=2)
+    rejected = np.zeros((V, n), dtype=bool)
+    fit = _batch_fit(g.P, obs, mask, None, g.orientation)
+    X, C, status, r = fit.points.copy(), fit.covariances.copy(), fit.status.copy(), fit.residuals.copy()
+    todo = np.flatnonzero(status == PointStatus.OK)
+    for _ in range(V):
+        if todo.size == 0:
+            break
+        m = mask[:, todo]
+        views = m.sum(axis=0)
+        loo = _leave_one_out(g.P, X[todo], np.nan_to_num(r[:, todo]), m & (views >= 3)) / job.sigma**2
+        worst = np.argmax(np.where(np.isfinite(loo), loo, -np.inf), axis=0)
+        worst_d2 = loo[worst, np.arange(todo.size)]
+        drop_one = (views >= 3) & (worst_d2 > job.gate2)
+        cost = np.nansum(r[:, todo] ** 2, axis=(0, 2)) / job.sigma**2
+        drop_pair = (views == 2) & (cost > job.gate1)
+        mask[worst[drop_one], todo[drop_one]] = False
+        rejected[worst[drop_one], todo[drop_one]] = True
+        pair_pts = todo[drop_pair]
+        rejected[:, pair_pts] |= mask[:, pair_pts]
+        mask[:, pair_pts] = False
+        changed = todo[drop_one | drop_pair]
+        if changed.size == 0:
+            break
+        refit = _batch_fit(g.P, obs[:, changed], mask[:, changed], X[changed], g.orientation)
+        X[changed], C[changed], status[changed] = refit.points, refit.covariances, refit.status
+        r[:, changed] = refit.residuals
+        todo = changed[refit.status == PointStatus.OK]
+    hist = None
+    if job.history:
+        hist_parts = []
+        counts = np.cumsum(mask, axis=0)
+        for v in range(1, V):
+            pts = np.flatnonzero(mask[v] & (counts[v] >= 2) & (status == PointStatus.OK))
+            if pts.size == 0:
+                continue
+            prefix = mask[:, pts] & (np.arange(V)[:, None] <= v)
+            f = _batch_fit(g.P, obs[:, pts], prefix, X[pts], g.orientation)
+            hist_parts.append((v, pts, f.points, f.covariances))
+        hist = _concat_history(hist_parts)
+    # residuals of every observation (rejected included) at the final estimate
+    ok = status == PointStatus.OK
+    pix = project_points(g.P, np.where(ok[:, None], X, 0.0)).pixels
+    residuals = np.where(np.isfinite(obs).all(axis=2)[..., None], obs - pix, np.nan)
+    return _finish(X, C, status, mask, rejected, residuals, hist)
+
+
+def _concat_history(parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    if not parts:
+        return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    return (np.concatenate([np.full(p[1].size, p[0]) for p in parts]), np.concatenate([p[1] for p in parts]),
+            np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]))
+
+
+def _pair_triangulation(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The report's midpoint triangulation of views (a, v) in world coordinates, unit-σ pixel covariance.
+
+    Works in the oriented camera frames o (R X + t) (depth positive in front, also for a
+    mirrored scene) and normalised image coordinates K⁻¹ x̃ (focal 1); the Jacobian
+    with respect to them is chained to pixels through the linear map K⁻¹.
+    """
+    o = g.orientation
+    R_rel = g.R[v] @ g.R[a].T
+    # x'_v = R_rel x'_a - b with x' = o (R X + t): b = o (R_rel t_a - t_v)
+    b = o * (R_rel @ g.t[a] - g.t[v])
+    if not np.any(np.abs(b) > 1e-12 * (1.0 + np.abs(g.t[a]).max())):
+        nan = np.full((xa.shape[0], 3), np.nan)
+        return nan, np.full((xa.shape[0], 3, 3), np.nan), np.full(xa.shape[0], TRIANGULATION_PARALLEL_RAYS)
+
+    def normalised(K_inv: np.ndarray, x: np.ndarray) -> np.ndarray:
+        h = np.concatenate([x, np.ones((x.shape[0], 1))], axis=1) @ K_inv.T
+        return h[:, :2] / h[:, 2:3]
+
+    tri = triangulate_midpoint(normalised(g.K_inv[a], xa), normalised(g.K_inv[v], xv), R_rel, b, 1.0)
+    # d(normalised)/d(pixel) is the upper-left 2 × 2 block of K⁻¹ (K⁻¹ has last row (0, 0, 1))
+    D = np.zeros((4, 4))
+    D[:2, :2], D[2:, 2:] = g.K_inv[a][:2, :2], g.K_inv[v][:2, :2]
+    J = tri.jacobians @ D
+    cov_cam = J @ np.swapaxes(J, 1, 2)
+    # back to the world: X = o R_vᵀ (p - o t_v) ... with o² = 1: X = R_vᵀ (o p - t_v)
+    X = (o * tri.points - g.t[v]) @ g.R[v]
+    cov = g.R[v].T @ cov_cam @ g.R[v]
+    return X, cov, tri.status
+
+
+def _pairs(job: _Chunk) -> _ChunkResult:
+    g, obs = job.geometry, job.observations
+    V, n, _ = obs.shape
+    seen_all = np.isfinite(obs).all(axis=2)
+    x = np.full((n, 3), np.nan)
+    P = np.full((n, 3, 3), np.nan)
+    started = np.zeros(n, dtype=bool)
+    used = np.zeros((V, n), dtype=bool)
+    prev = np.full(n, -1)
+    hist = []
+    for v in range(V):
+        seen = seen_all[v]
+        idx = np.flatnonzero(seen & (prev >= 0))
+        for a in np.unique(prev[idx]):
+            sel = idx[prev[idx] == a]
+            p, R, st = _pair_triangulation(g, int(a), v, obs[a, sel], obs[v, sel])
+            good = (st != TRIANGULATION_PARALLEL_RAYS) & (np.linalg.eigvalsh(np.where(
+                np.isfinite(R).all(axis=(1, 2))[:, None, None], R, np.eye(3)))[:, 0] > 0)
+            good &= np.isfinite(R).all(axis=(1, 2))
+            sel, p, R = sel[good], p[good], R[good]
+            first = ~started[sel]
+            s0, s1 = sel[first], sel[~first]
+            x[s0], P[s0] = p[first], R[first]
+            if s1.size:
+                # the report's fusion: the pair triangulation is a direct measurement of the point
+                res = kalman_update(x[s1], P[s1], p[~first], np.eye(3), R[~first])
+                x[s1], P[s1] = res.x, res.P
+            started[sel] = True
+            used[a, sel] = used[v, sel] = True
+            if job.history and sel.size:
+                hist.append((v, sel, x[sel].copy(), P[sel].copy()))
+        prev[seen] = v
+    status = np.full(n, PointStatus.OK, dtype=np.int8)
+    views = seen_all.sum(axis=0)
+    status[~started] = np.where(views[~started] >= 2, PointStatus.DEGENERATE, PointStatus.TOO_FEW_VIEWS)
+    depth = project_points(g.P, np.where(started[:, None], x, 0.0))
+    status[np.any(used & (depth.depths * g.orientation <= 0), axis=0) & started] = PointStatus.BEHIND_CAMERA
+    residuals = np.where(seen_all[..., None], obs - depth.pixels, np.nan)
+    return _finish(x, P, status, used, np.zeros((V, n), dtype=bool), residuals,
+                   _concat_history(hist) if job.history else None)
+
+
+_RUNNERS: dict[str, Callable[[_Chunk], _ChunkResult]] = {"recursive": _recursive, "batch": _batch, "pairs": _pairs}
+
+
+def _run_chunk(job: _Chunk) -> _ChunkResult:
+    return _RUNNERS[job.method](job)
+
+
+# ---------------------------------------------------------------------------------------------
+# Driver: chunks, σ passes, assembly.
+
+
+def _validate(observations: object, cameras: object) -> tuple[CameraSet, np.ndarray]:
+    cams = cameras if isinstance(cameras, CameraSet) else CameraSet.from_matrices(cameras)
+    obs = as_float_array("observations", observations)
+    V = len(cams)
+    if obs.ndim != 3 or obs.shape[0] != V or obs.shape[2] != 2:
+        raise InvalidInputError(
+            f"observations must have shape ({V} views, N points, 2) as (x, y), NaN where unseen; got {obs.shape}")
+    if np.isinf(obs).any():
+        raise InvalidInputError("observations must not contain infinity (NaN marks an unseen point)")
+    if V < 2:
+        raise NotEnoughDataError(f"fusing structure needs >= 2 cameras; got {V}")
+    # a point with one NaN coordinate is unseen in that view
+    obs = np.where(np.isnan(obs).any(axis=2, keepdims=True), np.nan, obs)
+    return cams, obs
+
+
+def _orientation(cams: CameraSet, obs: np.ndarray) -> int:
+    """The sign of the depths most (linearly triangulated) points agree on."""
+    counts = np.isfinite(obs[..., 0]).sum(axis=0)
+    sample = np.flatnonzero(counts >= 2)[:_ORIENTATION_SAMPLE]
+    if sample.size == 0:
+        return 1
+    return triangulate_points(cams, obs[:, sample]).orientation
+
+
+def _chunks(n: int, size: int) -> list[slice]:
+    return [slice(s, min(s + size, n)) for s in range(0, n, size)] or [slice(0, 0)]
+
+
+def _sum_squares(results: Iterable[_ChunkResult]) -> tuple[float, int, int]:
+    """Σ |r|² over accepted observations of fused points, their count, and the fused points."""
+    total, n_obs, n_pts = 0.0, 0, 0
+    for res in results:
+        ok = res.status == PointStatus.OK
+        u = res.used & ok[None]
+        total += float(np.sum(np.where(u[..., None], res.residuals, 0.0) ** 2))
+        n_obs += int(u.sum())
+        n_pts += int(ok.sum())
+    return total, n_obs, n_pts
+
+
+def fuse(
+    observations: object,
+    cameras: CameraSet | object,
+    method: str = "recursive",
+    pixel_std: float | str = "auto",
+    outlier_probability: float = DEFAULT_OUTLIER_PROBABILITY,
+    history: bool = False,
+    *,
+    chunk_points: int = DEFAULT_CHUNK_POINTS,
+    executor: Executor | None = None,
+) -> FusedStructure:
+    """Fuse each point's observations over many views with known cameras into a 3-D point and its covariance.
+
+    Parameters
+    ----------
+    observations : (V, N, 2) float
+        Pixel positions (x = column, y = row) of N points in the V views of
+        ``cameras``, in the same view order; NaN where a point is not seen.
+    cameras : CameraSet or (V, 3, 4) projection matrices.
+    method : {"recursive", "batch", "pairs"}
+        ``"recursive"``: the paper's Kalman fusion, view by view (inverse-depth
+        state, iterated EKF updates); ``"batch"``: per-point maximum likelihood
+        over all views (the reference); ``"pairs"``: the report's fusion of
+        consecutive two-view triangulations (over-confident, no outlier test).
+    pixel_std : float > 0 or "auto"
+        Image noise σ in pixels; ``"auto"`` estimates it from the residuals with
+        2 degrees of freedom per observation minus 3 per point, after outlier
+        rejection.
+    outlier_probability : float in (0, 1]
+        Observations beyond the χ² quantile of this probability are rejected
+        (1 disables the test).
+    history : bool
+        Also return every point's estimate after every view that observed it.
+    chunk_points : int
+        Points processed together; bounds the memory.
+    executor : concurrent.futures.Executor, optional
+        Runs the chunks (e.g. ``dask.distributed.Client.get_executor()``); by
+        default they run one after the other here.
+
+    Returns
+    -------
+    FusedStructure
+        Per-point estimates, covariances (σ² scaled) and status; a point that
+        cannot be estimated gets a status, never an exception.
+
+    Raises
+    ------
+    InvalidInputError
+        Bad shapes, infinite observations, invalid cameras or settings.
+    NotEnoughDataError
+        Fewer than 2 cameras, or ``pixel_std="auto"`` without redundant observations.
+
+    Examples
+    --------
+    Three cameras along x, 50 points, noise 0.5 px:
+
+    >>> import numpy as np
+    >>> from kalmansfm.structure.pinhole import CameraSet, project_points
+    >>> rng = np.random.default_rng(0)
+    >>> K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    >>> cams = CameraSet.from_pose(K, np.stack([np.eye(3)] * 3), [[0, 0, 0], [-0.5, 0, 0], [-1.0, 0, 0]])
+    >>> X = rng.uniform([-1, -1, 4], [1, 1, 6], size=(50, 3))
+    >>> obs = project_points(cams, X).pixels + rng.normal(scale=0.5, size=(3, 50, 2))
+    >>> fused = fuse(obs, cams)
+    >>> fused.status_counts()["fused"], round(fused.pixel_std, 1)
+    (50, 0.5)
+    >>> err = fused.points - X
+    >>> nees = np.einsum("ni,ni->n", err, np.linalg.solve(fused.covariances, err[..., None])[..., 0])
+    >>> bool(2.0 < nees.mean() < 4.5)
+    True
+    """
+    auto = isinstance(pixel_std, str)
+    if auto and pixel_std != "auto":
+        raise InvalidInputError(f"pixel_std must be a number (pixels) or 'auto'; got {pixel_std!r}")
+    settings = FusionSettings(method, None if auto else pixel_std, outlier_probability, history, chunk_points)
+    return fuse_with_settings(observations, cameras, settings, executor=executor)
+
+
+def fuse_with_settings(observations: object, cameras: CameraSet | object, settings: FusionSettings,
+                       executor: Executor | None = None) -> FusedStructure:
+    """:func:`fuse` with its options given as one :class:`FusionSettings`."""
+    cams, obs = _validate(observations, cameras)
+    geometry = _geometry(cams.matrices, _orientation(cams, obs))
+    V, N, _ = obs.shape
+    slices = _chunks(N, settings.chunk_points)
+
+    def run(sigma: float, gate2: float, gate1: float, keep_history: bool) -> list[_ChunkResult]:
+        jobs: Iterator[_Chunk] = (_Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history)
+                                  for s in slices)
+        mapper = map if executor is None else executor.map
+        return list(mapper(_run_chunk, jobs))
+
+    passes = 1
+    if settings.pixel_std is not None:
+        sigma = settings.pixel_std
+        results = run(sigma, settings.gate2, settings.gate1, settings.history)
+        sigma_out = sigma
+    else:
+        # Pilot without gates: a robust σ from the median squared residual, |r|² / σ² ≈ χ²(2) (median 2 ln 2),
+        # with the degrees of freedom counted.
+        results = run(1.0, np.inf, np.inf, False)
+        sq = np.concatenate([np.sum(np.where((r.used & (r.status == PointStatus.OK)[None])[..., None],
+                                             r.residuals, np.nan) ** 2, axis=2).ravel() for r in results])
+        sq = sq[np.isfinite(sq)]
+        total, n_obs, n_pts = _sum_squares(results)
+        dof = 2 * n_obs - 3 * n_pts
+        if dof <= 0 or sq.size == 0:
+            raise NotEnoughDataError(
+                f"pixel_std='auto' needs more observations than unknowns (2 per observation - 3 per point > 0); "
+                f"got {n_obs} observations of {n_pts} points: give pixel_std")
+        sigma = float(np.sqrt(np.median(sq) / (2 * np.log(2)) * 2 * n_obs / dof))
+        if not sigma > 0:
+            raise NotEnoughDataError("pixel_std='auto': the residuals are all zero, the noise cannot be estimated; "
+                                     "give pixel_std")
+        sigma_out = sigma
+        previous: tuple[float, float] | None = None
+        for _ in range(_MAX_SIGMA_PASSES):
+            results = run(sigma, settings.gate2, settings.gate1, settings.history)
+            passes += 1
+            total, n_obs, n_pts = _sum_squares(results)
+            dof = 2 * n_obs - 3 * n_pts
+            if dof <= 0:
+                raise NotEnoughDataError(
+                    f"pixel_std='auto' needs 2 × observations - 3 × points > 0 after outlier rejection; got {dof}")
+            sigma_out = float(np.sqrt(total / dof))
+            if abs(sigma_out / sigma - 1.0) < _SIGMA_TOLERANCE:
+                break
+            sigma, previous = _next_sigma(sigma, sigma_out, previous), (sigma, sigma_out)
+    return _assemble(settings, geometry, results, slices, V, N, sigma_out, settings.pixel_std is None, passes)
+
+
+def _next_sigma(sigma: float, estimate: float, previous: tuple[float, float] | None) -> float:
+    """The next σ to gate with: the fixed point σ = σ̂(σ) of the secant through the last two passes.
+
+    σ̂ grows with the gating σ (a wider gate admits larger residuals) with a slope
+    s < 1; plain iteration σ ← σ̂(σ) shrinks the error only by s per pass, the
+    secant step σ + (σ̂ - σ) / (1 - s) lands on the fixed point of the line.
+    """
+    if previous is None or previous[0] == sigma:
+        return estimate
+    slope = (estimate - previous[1]) / (sigma - previous[0])
+    slope = min(max(slope, 0.0), 0.9)
+    return sigma + (estimate - sigma) / (1.0 - slope)
+
+
+def _to_points(g: _Geometry, anchors: np.ndarray | None, x: np.ndarray, cov: np.ndarray, sigma: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(X, Y, Z) and covariance at pixel noise σ from a chunk's unit-σ states (inverse depth when anchored)."""
+    if anchors is None:
+        return x, cov * sigma**2
+    return _theta_to_point(g, np.maximum(anchors, 0), x, cov * sigma**2)
+
+
+def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult], slices: list[slice], V: int,
+              N: int, sigma: float, estimated: bool, passes: int) -> FusedStructure:
+    converted = [_to_points(g, r.anchors, r.points, r.covariances, sigma) for r in results]
+    points = np.concatenate([x for x, _ in converted])
+    cov = np.concatenate([c for _, c in converted])
+    status = np.concatenate([r.status for r in results])
+    used = np.concatenate([r.used for r in results], axis=1)
+    rejected = np.concatenate([r.rejected for r in results], axis=1)
+    res = np.concatenate([r.residuals for r in results], axis=1)
+    lengths = np.linalg.norm(res, axis=2)
+    ok = status == PointStatus.OK
+    views = used.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.sum(np.where(used, lengths, 0.0) ** 2, axis=0) / views)
+    rms = np.where(ok, rms, np.nan)
+    dof = int(2 * used[:, ok].sum() - 3 * ok.sum())
+    hist = None
+    if settings.history:
+        parts = [(r.history, s.start) for r, s in zip(results, slices)]
+        hv = np.concatenate([h[0] for h, _ in parts]).astype(np.int64)
+        hp = np.concatenate([h[1] + start for h, start in parts]).astype(np.int64)
+        states = [_to_points(g, None if r.anchors is None else r.anchors[r.history[1]], r.history[2], r.history[3],
+                             sigma) for r in results]
+        hx = np.concatenate([x for x, _ in states])
+        hc = np.concatenate([c for _, c in states])
+        order = np.lexsort((hp, hv))
+        hist = FusionHistory(hv[order], hp[order], hx[order], hc[order])
+    return FusedStructure(settings.method, points, cov, status, views, rms, lengths, rejected, float(sigma),
+                          estimated, dof, g.orientation, passes, hist)
