@@ -108,7 +108,7 @@ _MAX_CONDITION = 1e14
 _SIGMA_TOLERANCE = 5e-3
 _MAX_SIGMA_PASSES = 8
 # Points used to decide the scene orientation (the sign of the depths most points agree on).
-_ORIENTATION_SAMPLE = 20_000
+_ORIENTATION_SAMPLE = 2_000
 
 
 @dataclass(frozen=True)
@@ -265,6 +265,7 @@ class _Geometry:
     C: np.ndarray  # (V, 3) centres
     orientation: int
     Q: np.ndarray  # (V anchor, V, 3, 4): P_v H_a, the cameras acting on (α, β, ρ, 1)
+    depth_sign: np.ndarray  # (V,) sign of λ in P = λ K [R | t]: depth = w / λ
 
 
 def _geometry(P: np.ndarray, orientation: int) -> _Geometry:
@@ -278,7 +279,7 @@ def _geometry(P: np.ndarray, orientation: int) -> _Geometry:
     H[:, :3, 0], H[:, :3, 1], H[:, :3, 3] = o * Rt[:, :, 0], o * Rt[:, :, 1], o * Rt[:, :, 2]
     H[:, :3, 2], H[:, 3, 2] = C, 1.0
     Q = np.einsum("vij,ajk->avik", P, H)
-    return _Geometry(P, np.linalg.inv(pose.intrinsics), R, pose.translations, C, o, Q)
+    return _Geometry(P, np.linalg.inv(pose.intrinsics), R, pose.translations, C, o, Q, np.sign(pose.scales))
 
 
 def _theta_to_point(g: _Geometry, anchor: np.ndarray, theta: np.ndarray, cov: np.ndarray
@@ -304,9 +305,11 @@ def _theta_to_point(g: _Geometry, anchor: np.ndarray, theta: np.ndarray, cov: np
     Hs = np.zeros((n, 3, 3, 3))  # Hs[:, i] = d²Y_i / dθ²
     Hs[:, 0, 0, 2] = Hs[:, 0, 2, 0] = Hs[:, 1, 1, 2] = Hs[:, 1, 2, 1] = -1.0 / r**2
     Hs[:, 0, 2, 2], Hs[:, 1, 2, 2], Hs[:, 2, 2, 2] = 2 * a / r**3, 2 * b / r**3, 2.0 / r**3
-    HP = Hs @ cov[:, None]
+    HP = Hs @ cov[:, None]  # (n, 3, 3, 3)
     Y = np.stack([a, b, np.ones_like(a)], axis=1) / r[:, None] + 0.5 * np.trace(HP, axis1=2, axis2=3)
-    cov_Y = G @ cov @ np.swapaxes(G, 1, 2) + 0.5 * np.einsum("niab,njba->nij", HP, HP)
+    # tr(H_i P H_j P) = Σ_ab (H_i P)_ab (H_j P)_ba, as one batched (3 × 9)(9 × 3) product
+    second = HP.reshape(n, 3, 9) @ np.swapaxes(HP, 2, 3).reshape(n, 3, 9).transpose(0, 2, 1)
+    cov_Y = G @ cov @ np.swapaxes(G, 1, 2) + 0.5 * second
     Rt = np.swapaxes(g.R[anchor], 1, 2)
     X = g.C[anchor] + g.orientation * np.einsum("nij,nj->ni", Rt, Y)
     cov_X = Rt @ cov_Y @ np.swapaxes(Rt, 1, 2)
@@ -428,7 +431,43 @@ class _ChunkResult:
     anchors: np.ndarray | None = None  # (n,) for states in inverse depth: points/covariances hold θ and its P
 
 
-def _recursive(job: _Chunk) -> _ChunkResult:
+@dataclass(frozen=True)
+class _States:
+    """What a recursive pass leaves: unit-σ inverse-depth states and the bookkeeping."""
+
+    theta: np.ndarray  # (n, 3), NaN where not started
+    cov: np.ndarray  # (n, 3, 3)
+    anchor: np.ndarray  # (n,) -1 where not started
+    started: np.ndarray  # (n,) bool
+    stalled: np.ndarray  # (n,) bool: a pair without parallax was met
+    used: np.ndarray  # (V, n) bool
+    rejected: np.ndarray  # (V, n) bool
+    residuals: np.ndarray  # (V, n, 2) observed - projected at the final state, every observation; NaN elsewhere
+    in_front: np.ndarray  # (n,) bool: positive oriented depth in every used view (started points)
+    history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+
+
+def _residuals_and_cheirality(g: _Geometry, obs: np.ndarray, theta: np.ndarray, anchor: np.ndarray,
+                              started: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals of every observation at the final θ, and whether the point is in front of its used views.
+
+    With X̃ = H_a θ̃ = ρ (X, 1), the projective depth through Q = P_v H_a is ρ w, so the
+    depth's sign in view v is sign(w_θ) sign(ρ) sign(λ_v).
+    """
+    V, n, _ = obs.shape
+    residuals = np.full((V, n, 2), np.nan)
+    in_front = np.zeros(n, dtype=bool)
+    for a in np.unique(anchor[started]):  # one group per anchor view, not per point
+        idx = np.flatnonzero(started & (anchor == a))
+        pix, w, _ = project_each(g.Q[a][:, None], theta[idx][None])
+        residuals[:, idx] = obs[:, idx] - pix
+        depth_sign = np.sign(w) * np.sign(theta[idx, 2]) * g.depth_sign[:, None]
+        in_front[idx] = ~np.any(used[:, idx] & (depth_sign * g.orientation <= 0), axis=0)
+    return residuals, in_front
+
+
+def _recursive_states_numpy(job: _Chunk) -> _States:
+    """The reference implementation, vectorised over the points of each view."""
     g, obs = job.geometry, job.observations
     V, n, _ = obs.shape
     seen_all = np.isfinite(obs).all(axis=2)
@@ -471,24 +510,62 @@ def _recursive(job: _Chunk) -> _ChunkResult:
                 hist.append((v, go, th[consistent], P[consistent]))
         # first usable view: it becomes the pending anchor
         pending[seen & ~started & (pending < 0)] = v
+    residuals, in_front = _residuals_and_cheirality(g, obs, theta, anchor, started, used)
+    return _States(theta, cov, anchor, started, stalled, used, rejected, residuals, in_front,
+                   _concat_history(hist) if job.history else None)
 
-    X, _ = _theta_to_point(g, np.maximum(anchor, 0), np.where(started[:, None], theta, np.nan),
-                           cov * job.sigma**2)
+
+def _recursive_states_compiled(job: _Chunk) -> _States:
+    """The numba kernel (:mod:`._recursive_kernel`), point by point; same results as the reference."""
+    from ._recursive_kernel import recursive_pass
+
+    g = job.geometry
+    V, n, _ = job.observations.shape
+    # point-major copies: a point's views sit together in memory while the kernel walks through them
+    obs = np.ascontiguousarray(job.observations.transpose(1, 0, 2))
+    theta = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    anchor = np.full(n, -1, dtype=np.int64)
+    started = np.zeros(n, dtype=bool)
+    stalled = np.zeros(n, dtype=bool)
+    used = np.zeros((n, V), dtype=bool)
+    rejected = np.zeros((n, V), dtype=bool)
+    residuals = np.full((n, V, 2), np.nan)
+    in_front = np.zeros(n, dtype=bool)
+    shape = (n, V) if job.history else (0, 0)
+    hist_theta, hist_cov = np.zeros(shape + (3,)), np.zeros(shape + (3, 3))
+    hist_mask = np.zeros(shape, dtype=bool)
+    recursive_pass(np.ascontiguousarray(g.Q), np.ascontiguousarray(g.K_inv), g.depth_sign * float(g.orientation),
+                   obs, float(job.sigma), float(job.gate2), float(job.gate1), _START_ITERATIONS, _IEKF_ITERATIONS,
+                   _IEKF_TOLERANCE, _MAX_CONDITION, bool(job.history), theta, cov, anchor, started, stalled, used,
+                   rejected, residuals, in_front, hist_theta, hist_cov, hist_mask)
+    history = None
+    if job.history:
+        views, pts = np.nonzero(hist_mask.T)
+        history = (views, pts, hist_theta[pts, views], hist_cov[pts, views])
+    return _States(theta, cov, anchor, started, stalled, used.T, rejected.T, residuals.transpose(1, 0, 2), in_front,
+                   history)
+
+
+#: The recursive pass runs the compiled kernel; the NumPy reference is kept for the tests to compare.
+_RECURSIVE_STATES = _recursive_states_compiled
+
+
+def _recursive(job: _Chunk) -> _ChunkResult:
+    n = job.observations.shape[1]
+    st = _RECURSIVE_STATES(job)
+    theta, cov, started = st.theta, st.cov, st.started
     status = np.full(n, PointStatus.OK, dtype=np.int8)
-    status[~started] = np.where(stalled[~started], PointStatus.DEGENERATE, PointStatus.TOO_FEW_VIEWS)
+    status[~started] = np.where(st.stalled[~started], PointStatus.DEGENERATE, PointStatus.TOO_FEW_VIEWS)
+    # ρ <= 0: the estimate lies beyond infinity; clearly so (3σ) is a point behind the cameras,
+    # otherwise the depth is not determined yet
     rho_std = np.sqrt(np.abs(cov[:, 2, 2]))
     no_depth = started & ~(theta[:, 2] > 0)
     status[no_depth] = np.where(theta[no_depth, 2] + 3 * rho_std[no_depth] < 0, PointStatus.BEHIND_CAMERA,
                                 PointStatus.DEGENERATE)
-    # residuals from θ directly (valid whatever the sign of ρ)
-    pix, _, _ = project_each(g.Q[np.maximum(anchor, 0)].transpose(1, 0, 2, 3), theta[None])
-    residuals = np.where((seen_all & started)[..., None], obs - pix, np.nan)
-    depth = project_points(g.P, np.where(status[:, None] == PointStatus.OK, X, 0.0)).depths
-    behind = np.any(used & (depth * g.orientation <= 0), axis=0) & (status == PointStatus.OK)
-    status[behind] = PointStatus.BEHIND_CAMERA
+    status[(status == PointStatus.OK) & ~st.in_front] = PointStatus.BEHIND_CAMERA
     # The state goes out in inverse depth: its (X, Y, Z) image depends on σ (second-order terms), known later.
-    return _finish(theta, cov, status, used, rejected, residuals,
-                   _concat_history(hist) if job.history else None, anchor)
+    return _finish(theta, cov, status, st.used, st.rejected, st.residuals, st.history, st.anchor)
 
 
 def _finish(X, C, status, used, rejected, residuals, history, anchors=None) -> _ChunkResult:
