@@ -65,7 +65,9 @@ __all__ = [
     "ObservationList",
     "bundle_adjust",
     "free_network_covariances",
+    "reduced_camera_matrix",
     "reprojection_residuals",
+    "similarity_free_covariances",
     "single_threaded_blas",
 ]
 
@@ -263,6 +265,31 @@ def _reduced_camera_matrix(obs: ObservationList, blocks: _Blocks, U: np.ndarray,
     return S, Y
 
 
+def reduced_camera_matrix(rotations: np.ndarray, centres: np.ndarray, points: np.ndarray,
+                          observations: ObservationList, intrinsics: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Information of the cameras with the points eliminated, S = U - W V⁻¹ Wᵀ (6n × 6n, unit σ), and V (m, 3, 3).
+
+    Camera j's parameters are (δω_j, δC_j) as in :func:`bundle_adjust`; S is singular
+    along the 7 similarity directions.  Fixing some cameras means keeping the
+    rows and columns of the others.
+
+    Examples
+    --------
+    >>> X = np.random.default_rng(0).uniform(-1, 1, (20, 3))
+    >>> C = np.array([[0.0, 0, -5], [1.0, 0, -5]])
+    >>> K = np.diag([500.0, 500.0, 1.0])
+    >>> x = np.einsum("ij,fnj->fni", K, X[None] - C[:, None])
+    >>> S, V = reduced_camera_matrix(np.stack([np.eye(3)] * 2), C, X, ObservationList.from_dense(x[..., :2] / x[..., 2:]), K)
+    >>> S.shape, V.shape, int(np.sum(np.linalg.eigvalsh(S) > 1e-9 * np.abs(S).max()))
+    ((12, 12), (20, 3, 3), 5)
+    """
+    R, C, X, K = _validate_problem(rotations, centres, points, observations, intrinsics)
+    r, _, J_c, J_p = _residuals(R, C, X, observations, _projection_matrices(K))
+    blocks = _normal_blocks(observations, len(R), len(X), r, J_c, J_p, np.ones(len(observations)))
+    S, _ = _reduced_camera_matrix(observations, blocks, blocks.U, np.linalg.inv(blocks.V))
+    return S, blocks.V
+
+
 def _validate_problem(rotations: object, centres: object, points: object, observations: ObservationList,
                       intrinsics: object) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     R = as_float_array("rotations", rotations)
@@ -439,6 +466,46 @@ def _similarity_directions(rotations: np.ndarray, centres: np.ndarray, points: n
     return T, G
 
 
+def _project_out_similarity(blocks: np.ndarray, H: np.ndarray, M: np.ndarray, HtM: np.ndarray) -> np.ndarray:
+    """Diagonal 3 × 3 blocks of P⊥ Σ P⊥, P⊥ = I - H Hᵀ, from Σ's blocks, H (m, 3, 7), M = Σ H and Hᵀ Σ H.
+
+    (P⊥ Σ P⊥)_ii = Σ_ii - H_i M_iᵀ - M_i H_iᵀ + H_i (Hᵀ Σ H) H_iᵀ.
+    """
+    Ht = np.swapaxes(H, 1, 2)
+    return blocks - H @ np.swapaxes(M, 1, 2) - M @ Ht + H @ HtM @ Ht
+
+
+def similarity_free_covariances(points: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """Covariances of independent points after a least-squares similarity alignment over all of them.
+
+    The free-network gauge of :func:`free_network_covariances` for estimates whose
+    errors are independent from point to point (a per-point filter): P⊥ diag(Σ_i) P⊥.
+
+    Parameters
+    ----------
+    points : (m, 3), m >= 3.
+    covariances : (m, 3, 3).
+
+    Returns
+    -------
+    (m, 3, 3)
+
+    Examples
+    --------
+    >>> X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])
+    >>> free = similarity_free_covariances(X, np.stack([np.eye(3)] * 5))
+    >>> bool(np.all(np.trace(free, axis1=1, axis2=2) < 3.0))  # alignment absorbs part of each error
+    True
+    """
+    X = np.asarray(points, dtype=np.float64)
+    S = np.asarray(covariances, dtype=np.float64)
+    _, G = _similarity_directions(np.zeros((0, 3, 3)), np.zeros((0, 3)), X)
+    H, _ = np.linalg.qr(G.reshape(-1, 7))
+    H_blocks = H.reshape(len(X), 3, 7)
+    M = S @ H_blocks
+    return _project_out_similarity(S, H_blocks, M, np.einsum("mij,mil->jl", H_blocks, M))
+
+
 def _observation_pairs(points: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
     """All ordered pairs (a, b) of observations of the same point (a = b included)."""
     order = np.argsort(points, kind="stable")
@@ -519,9 +586,7 @@ def free_network_covariances(rotations: object, centres: object, points: object,
     WtZ = _accumulate(obs.points, np.einsum("kji,kjl->kil", blocks.W, Z[obs.cameras]), m)
     M = V_inv @ (H_blocks + WtZ)
     HtM = np.einsum("mij,mil->jl", H_blocks, M)
-    # P⊥ N⁻_pp P⊥ with P⊥ = I - H Hᵀ, diagonal blocks: Σ_ii - H_i M_iᵀ - M_i H_iᵀ + H_i (Hᵀ M) H_iᵀ
-    Ht = np.swapaxes(H_blocks, 1, 2)
-    free_points = point_cov - H_blocks @ np.swapaxes(M, 1, 2) - M @ Ht + H_blocks @ HtM @ Ht
+    free_points = _project_out_similarity(point_cov, H_blocks, M, HtM)
     # cameras in the same gauge: (I - T A) N⁻ (I - T A)ᵀ, A = (GᵀG)⁻¹ Gᵀ acting on the point part
     GtG_inv = np.linalg.inv(G_flat.T @ G_flat)
     YG = _accumulate(obs.cameras, np.einsum("kij,kjl->kil", Y, G[obs.points]), n).reshape(6 * n, 7)
