@@ -16,7 +16,7 @@ import pytest
 from scipy import stats
 
 from kalmansfm.io.cameras import match_cameras, read_cameras
-from kalmansfm.io.track_table import read_track_positions
+from kalmansfm.io.tracks import read_tracks
 from kalmansfm.structure.point_fusion import fuse
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,8 +36,8 @@ def dataset(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
     converter().convert(DATA / request.param, out)
     cams = read_cameras(out / "cameras.csv")
-    tracks = read_track_positions(out / "tracks.csv")
-    matched = match_cameras(tracks.positions, tracks.frames, tracks.track_ids, cams)
+    tracks = read_tracks(out / "tracks.csv")
+    matched = match_cameras(tracks.observations(), tracks.frames, tracks.track_ids, cams)
     reference = np.loadtxt(out / "points3d.csv", delimiter=",", skiprows=1)
     points = np.full((int(reference[:, 0].max()) + 1, 3), np.nan)
     points[reference[:, 0].astype(int)] = reference[:, 1:]

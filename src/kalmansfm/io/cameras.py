@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..structure.pinhole import CameraSet
 from .ground_truth import _number
-from .track_table import _floats, _integers
+from .tracks import _floats, _indices
 
 __all__ = ["MATRIX_COLUMNS", "POSE_COLUMNS", "CameraObservations", "cameras_csv", "match_cameras", "read_cameras"]
 
@@ -97,7 +97,7 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
                                 f"got {','.join(header)}")
     table = np.array([row for _, row in rows], dtype=object)
     lines = np.array([n for n, _ in rows])
-    frames = _integers(file, table[:, column["frame"]], lines, "frame")
+    frames = _indices(file, table[:, column["frame"]], lines, "frame")
     values = np.stack([_floats(file, table[:, column[c]], lines, c) for c in layout[1:]], axis=1)
     _, first, counts = np.unique(frames, return_index=True, return_counts=True)
     if np.any(counts > 1):

@@ -68,7 +68,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import as_float_array, check_count, check_positive
+from .._validation import as_float_array, check_count, check_positive
 from ..estimation.kalman import kalman_update
 from .pinhole import (
     CameraSet,
