@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..estimation._checks import check_count, check_positive
+from .._validation import check_count, check_positive
 from ..structure.pinhole import CameraSet, project_points
 
 __all__ = ["KnownCameraScene", "known_camera_scene"]

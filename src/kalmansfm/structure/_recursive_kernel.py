@@ -40,7 +40,7 @@ def _project(Q, th0, th1, th2, J):
     return x, y
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _inv3(A, out):
     """Inverse of a 3 × 3 matrix by cofactors; returns the determinant."""
     c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
@@ -60,7 +60,7 @@ def _inv3(A, out):
     return det
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _normal2(Qa, Qv, xa, ya, xv, yv, th, N, g, J):
     """Normal matrix JᵀJ, gradient Jᵀr and cost |r|² of the two start views at θ."""
     for i in range(3):
@@ -83,7 +83,7 @@ def _normal2(Qa, Qv, xa, ya, xv, yv, th, N, g, J):
     return cost
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _ridged_inverse(N, out, tmp):
     ridge = 1e-14 * (N[0, 0] + N[1, 1] + N[2, 2]) + np.finfo(np.float64).tiny
     for i in range(3):
@@ -93,7 +93,7 @@ def _ridged_inverse(N, out, tmp):
     _inv3(tmp, out)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _extreme_eigenvalues(A):
     """Smallest and largest eigenvalue of a symmetric 3 × 3 matrix, in closed form (trigonometric)."""
     p1 = A[0, 1] ** 2 + A[0, 2] ** 2 + A[1, 2] ** 2
@@ -114,7 +114,7 @@ def _extreme_eigenvalues(A):
     return lo, hi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(Qa, Qv, Kinv, xa, ya, xv, yv, iterations, tolerance, max_condition, th, P, N, g, J, Nt, gt, inv, tmp,
            trial, step):
     """Two-view start: θ and its unit-σ covariance into th, P; returns (usable, cost)."""
@@ -166,7 +166,7 @@ def _start(Qa, Qv, Kinv, xa, ya, xv, yv, iterations, tolerance, max_condition, t
     return usable, cost
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _kalman_step(prior, P, H, y, x_out, P_out, PHt, K, A, AP):
     """x = x̂ + K y, P = (I - K H) P (I - K H)ᵀ + K Kᵀ with S = H P Hᵀ + I; returns yᵀ S⁻¹ y.
 
@@ -200,7 +200,7 @@ def _kalman_step(prior, P, H, y, x_out, P_out, PHt, K, A, AP):
     return y[0] * (i00 * y[0] + i01 * y[1]) + y[1] * (i01 * y[0] + i11 * y[1])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _update(Q, x, y_obs, sigma, gate, iterations, tolerance, th, P, H, prior, P0, y, xn, Pn, PHt, K, A, AP):
     """Gated iterated EKF update of (th, P) in place by the pixel (x, y_obs); returns accepted.
 
@@ -251,54 +251,115 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
     Outputs: theta (n, 3), cov (n, 3, 3) at unit σ, anchor (n,), started/stalled (n,),
     used/rejected (n, V), residuals (n, V, 2) of every observation at the final state,
     in_front (n,); with keep_history, hist_* (n, V, ...) and hist_mask (n, V).
+    The states and transitions are those of the NumPy reference (``_recursive_states_numpy``).
     """
     n, V = obs.shape[0], obs.shape[1]
+    gate1_px = gate1 * sigma**2
     th = np.empty(3)
     P = np.empty((3, 3))
     # work buffers, allocated once per pass
     H, prior, P0, y2, xn, Pn = np.empty((2, 3)), np.empty(3), np.empty((3, 3)), np.empty(2), np.empty(3), np.empty((3, 3))
     PHt, K, A, AP = np.empty((3, 2)), np.empty((3, 2)), np.empty((3, 3)), np.empty((3, 3))
     N, g, Nt, gt, step = np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3)
+    th_h, P_h, cost_h = np.empty((3, 3)), np.empty((3, 3, 3)), np.empty(3)
+    pair_f, pair_s = np.empty(3, dtype=np.int64), np.empty(3, dtype=np.int64)
     for p in range(n):
-        pending = -1
-        a = -1
+        first = -1
+        second = -1
+        is_started = False
+        verified = False
         for v in range(V):
             x, y = obs[p, v, 0], obs[p, v, 1]
             if np.isnan(x) or np.isnan(y):
                 continue
-            if started[p]:
-                ok = _update(Q[a, v], x, y, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0, y2, xn, Pn,
-                             PHt, K, A, AP)
+            resolve = False
+            if is_started:
+                ok = _update(Q[first, v], x, y, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0, y2,
+                             xn, Pn, PHt, K, A, AP)
                 if ok:
                     used[p, v] = True
+                    verified = True
                     if keep_history:
                         hist_mask[p, v] = True
                         hist_theta[p, v, :] = th
                         hist_cov[p, v, :, :] = P
-                else:
+                elif verified:
                     rejected[p, v] = True
-            elif pending >= 0:
-                usable, cost = _start(Q[pending, pending], Q[pending, v], Kinv[pending], obs[p, pending, 0],
-                                      obs[p, pending, 1], x, y, start_iterations, tolerance, max_condition, th, P,
-                                      N, g, H, Nt, gt, A, AP, xn, step)
+                else:
+                    resolve = True
+            elif first >= 0 and second < 0:
+                usable, cost = _start(Q[first, first], Q[first, v], Kinv[first], obs[p, first, 0],
+                                      obs[p, first, 1], x, y, start_iterations, tolerance, max_condition, th_h[0],
+                                      P_h[0], N, g, H, Nt, gt, A, AP, xn, step)
                 if not usable:
-                    stalled[p] = True
-                elif cost / sigma**2 <= gate1:
-                    a = pending
-                    started[p] = True
-                    anchor[p] = a
-                    used[p, a] = True
+                    stalled[p] = True  # no parallax with the pending view: wait for another view
+                elif cost <= gate1_px:
+                    th[:] = th_h[0]
+                    P[:, :] = P_h[0]
+                    second = v
+                    is_started = True
+                    used[p, first] = True
                     used[p, v] = True
                     if keep_history:
                         hist_mask[p, v] = True
                         hist_theta[p, v, :] = th
                         hist_cov[p, v, :, :] = P
                 else:
-                    rejected[p, pending] = True
-                    pending = v
+                    second = v
+            elif second >= 0:
+                resolve = True
             else:
-                pending = v
-        if started[p]:
+                first = v
+            if not resolve:
+                continue
+            # three observations (first, second, v) that do not agree
+            provisional = is_started
+            pair_f[0], pair_s[0] = second, v  # drop first
+            pair_f[1], pair_s[1] = first, v  # drop second
+            pair_f[2], pair_s[2] = first, second  # drop v
+            best = -1
+            for h in range(3):
+                f, s = pair_f[h], pair_s[h]
+                usable, cost = _start(Q[f, f], Q[f, s], Kinv[f], obs[p, f, 0], obs[p, f, 1], obs[p, s, 0],
+                                      obs[p, s, 1], start_iterations, tolerance, max_condition, th_h[h], P_h[h],
+                                      N, g, H, Nt, gt, A, AP, xn, step)
+                cost_h[h] = cost if usable else np.inf
+                if best < 0 or cost_h[h] < cost_h[best]:
+                    best = h
+            if cost_h[best] <= gate1_px:
+                if provisional and best == 2:
+                    rejected[p, v] = True  # the point's own pair wins: keep its state
+                    continue
+                dropped = first if best == 0 else (second if best == 1 else v)
+                th[:] = th_h[best]
+                P[:, :] = P_h[best]
+                first, second = pair_f[best], pair_s[best]
+                used[p, first] = True
+                used[p, second] = True
+                used[p, dropped] = False
+                rejected[p, dropped] = True
+                is_started = True
+                verified = False
+                if keep_history:
+                    for u in range(v):
+                        hist_mask[p, u] = False
+                    hist_mask[p, v] = True
+                    hist_theta[p, v, :] = th
+                    hist_cov[p, v, :, :] = P
+            else:
+                # no consistent pair: the oldest goes, the other two remain a conflict
+                used[p, first] = False
+                used[p, second] = False
+                rejected[p, first] = True
+                is_started = False
+                verified = False
+                first, second = second, v
+                if keep_history:
+                    for u in range(v + 1):
+                        hist_mask[p, u] = False
+        if is_started:
+            started[p] = True
+            anchor[p] = first
             theta[p, :] = th
             cov[p, :, :] = P
             front = True
@@ -306,7 +367,7 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
                 x, y = obs[p, v, 0], obs[p, v, 1]
                 if np.isnan(x) or np.isnan(y):
                     continue
-                Qv = Q[a, v]
+                Qv = Q[first, v]
                 u = Qv[0, 0] * th[0] + Qv[0, 1] * th[1] + Qv[0, 2] * th[2] + Qv[0, 3]
                 vv = Qv[1, 0] * th[0] + Qv[1, 1] * th[1] + Qv[1, 2] * th[2] + Qv[1, 3]
                 w = Qv[2, 0] * th[0] + Qv[2, 1] * th[1] + Qv[2, 2] * th[2] + Qv[2, 3]

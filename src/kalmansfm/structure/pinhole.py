@@ -42,7 +42,7 @@ from enum import IntEnum
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..estimation._checks import as_float_array, check_finite, check_positive
+from .._validation import as_float_array, check_finite, check_positive
 
 __all__ = [
     "CameraPose",
@@ -417,9 +417,10 @@ def project_each(matrices: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, 
     uvw = np.einsum("...ij,...j->...i", M, points) + matrices[..., 3]
     w = uvw[..., 2]
     w_safe = np.where(w == 0, np.finfo(float).tiny, w)
-    pix = uvw[..., :2] / w_safe[..., None]
-    # d(u/w)/dX = (m1 - x m3) / w, d(v/w)/dX = (m2 - y m3) / w
-    J = (M[..., :2, :] - pix[..., :, None] * M[..., 2:3, :]) / w_safe[..., None, None]
+    with np.errstate(over="ignore", invalid="ignore"):  # a point on a camera's principal plane projects to inf
+        pix = uvw[..., :2] / w_safe[..., None]
+        # d(u/w)/dX = (m1 - x m3) / w, d(v/w)/dX = (m2 - y m3) / w
+        J = (M[..., :2, :] - pix[..., :, None] * M[..., 2:3, :]) / w_safe[..., None, None]
     return pix, w, J
 
 
