@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..estimation._checks import check_count, check_positive
+from .._validation import check_count, check_positive
 
 __all__ = ["PerspectiveScene", "perspective_scene"]
 

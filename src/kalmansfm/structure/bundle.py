@@ -54,7 +54,7 @@ import scipy.sparse
 from threadpoolctl import threadpool_limits
 
 from ..errors import InvalidInputError
-from ..estimation._checks import as_float_array, check_positive
+from .._validation import as_float_array, check_positive
 from .pinhole import project_each
 from .rotation import cross_matrix, rotation_exp
 

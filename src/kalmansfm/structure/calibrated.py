@@ -13,7 +13,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import as_float_array, check_count, check_positive
+from .._validation import as_float_array, check_count, check_positive
 
 __all__ = [
     "DEFAULT_OUTLIER_THRESHOLD_PX",
