@@ -78,31 +78,30 @@ class RelativePose:
     homography_inliers: int
 
 
-def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float, min_inliers: int) -> RelativePose | None:
+def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float) -> RelativePose | None:
     """Essential matrix (RANSAC), homography (RANSAC) and pose by cheirality from normalised matches (k, 2).
 
-    ``threshold`` is the RANSAC inlier distance in normalised units; None when no
-    pose with ``min_inliers`` triangulated inliers exists.
+    ``threshold`` is the RANSAC inlier distance in normalised units.  None when no
+    essential matrix is found; otherwise the pose with however many inliers
+    triangulate in front of both views (few when the views have no parallax).
     """
     a, b = np.ascontiguousarray(first), np.ascontiguousarray(second)
+    if len(a) < 5:
+        return None
     # OpenCV's USAC with local optimisation: plain RANSAC at a 4 px threshold picked a wrong essential matrix
     # (baseline direction > 10° off) in 25 of 90 consecutive pairs of the synthetic walk-around, USAC in none
     E, mask_e = cv2.findEssentialMat(a, b, np.eye(3), method=cv2.USAC_ACCURATE, prob=0.999, threshold=threshold)
     if E is None or E.shape != (3, 3) or mask_e is None:
         return None
     _, mask_h = cv2.findHomography(a, b, cv2.USAC_ACCURATE, threshold)
+    n_h = 0 if mask_h is None else int(mask_h.sum())
     _, R, t, mask_pose = cv2.recoverPose(E, a, b, np.eye(3), mask=mask_e.copy())
     keep = np.flatnonzero(mask_pose.ravel() > 0)
-    if len(keep) < min_inliers:
-        return None
     cams = CameraSet.from_pose(np.eye(3), np.stack([np.eye(3), R]), np.stack([np.zeros(3), t.ravel()]))
     tri = triangulate_points(cams, np.stack([a[keep], b[keep]]), orientation=1)
     good = tri.status == PointStatus.OK
-    if good.sum() < min_inliers:
-        return None
     angles = _ray_angles_deg(cams.centers, tri.points[good], np.ones((2, int(good.sum())), bool))
-    return RelativePose(R, t.ravel(), keep[good], tri.points[good], angles, int(mask_e.sum()),
-                        0 if mask_h is None else int(mask_h.sum()))
+    return RelativePose(R, t.ravel(), keep[good], tri.points[good], angles, int(mask_e.sum()), n_h)
 
 
 class _Incremental:
@@ -174,17 +173,18 @@ class _Incremental:
     def _try_pair(self, i: int, j: int) -> _PairCandidate | None:
         tracks = np.flatnonzero(self.seen[i] & self.seen[j])
         pose = relative_pose(self.normalised[i, tracks], self.normalised[j, tracks],
-                             self.threshold / np.sqrt(self.focal[i] * self.focal[j]),
-                             2 * self.settings.min_registration_points)
+                             self.threshold / np.sqrt(self.focal[i] * self.focal[j]))
         if pose is None:
             return None
+        angle = float(np.median(pose.angles_deg)) if len(pose.angles_deg) else 0.0
         return _PairCandidate(i, j, tracks[pose.inliers], pose.rotation, pose.translation, pose.essential_inliers,
-                              pose.homography_inliers, float(np.median(pose.angles_deg)))
+                              pose.homography_inliers, angle)
 
     def initialize(self) -> None:
         start = time.perf_counter()
         tried = [c for c in (self._try_pair(i, j) for i, j in self._candidate_pairs()) if c is not None]
         usable = [c for c in tried if c.homography_inliers < _MAX_HOMOGRAPHY_SHARE * c.essential_inliers
+                  and len(c.inliers) >= 2 * self.settings.min_registration_points
                   and c.median_angle_deg >= self.settings.min_pair_angle_deg]
         self._timed("initial_pair", start)
         if not usable:
@@ -199,14 +199,17 @@ class _Incremental:
         self.last_global = 2
 
     def _why_no_pair(self, tried: list[_PairCandidate]) -> str:
+        need = 2 * self.settings.min_registration_points
         if not tried:
-            return ("no frame pair gives a consistent relative pose (essential matrix) with >= "
-                    f"{2 * self.settings.min_registration_points} inliers: too few correct matches")
+            return "no frame pair gives an essential matrix: too few correct matches between any two frames"
         share = max(c.homography_inliers / max(c.essential_inliers, 1) for c in tried)
         if all(c.homography_inliers >= _MAX_HOMOGRAPHY_SHARE * c.essential_inliers for c in tried):
             return (f"degenerate scene: in every frame pair a homography explains the matches (up to {100 * share:.0f} "
                     "% of the essential-matrix inliers): all points on one plane, or a camera that only rotates; "
                     "depth cannot be recovered")
+        if all(len(c.inliers) < need for c in tried):
+            return (f"no frame pair has >= {need} matches consistent with one relative pose (most: "
+                    f"{max(len(c.inliers) for c in tried)}): too few correct matches, or points at infinity")
         angle = max(c.median_angle_deg for c in tried)
         return (f"no frame pair has enough parallax: the largest median triangulation angle is {angle:.2f} degrees "
                 f"(need >= {self.settings.min_pair_angle_deg}); the camera barely moved, or it only rotated")

@@ -93,8 +93,9 @@ def _relative_orientation(obs: np.ndarray, K: np.ndarray, normalised: np.ndarray
     if len(tracks) < need:
         return None
     pose = relative_pose(normalised[a, tracks], normalised[b, tracks],
-                         settings.outlier_threshold_px / np.sqrt(focal.prod()), need)
-    if pose is None or pose.homography_inliers >= _DEGENERATE_HOMOGRAPHY_SHARE * pose.essential_inliers:
+                         settings.outlier_threshold_px / np.sqrt(focal.prod()))
+    if pose is None or len(pose.inliers) < need \
+            or pose.homography_inliers >= _DEGENERATE_HOMOGRAPHY_SHARE * pose.essential_inliers:
         return None
     tracks, X = tracks[pose.inliers], pose.points
     R0 = np.stack([np.eye(3), pose.rotation])
