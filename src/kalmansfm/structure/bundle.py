@@ -506,6 +506,25 @@ def similarity_free_covariances(points: np.ndarray, covariances: np.ndarray) -> 
     return _project_out_similarity(S, H_blocks, M, np.einsum("mij,mil->jl", H_blocks, M))
 
 
+def _coupled_diagonal_blocks(obs: ObservationList, n: int, m: int, Y: np.ndarray, S_g: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) diagonal blocks of Yᵀ S⁻ Y, Y the (6n × 3m) matrix of the per-observation blocks Y_a."""
+    if 6 * n * 3 * m * 8 <= _DENSE_COUPLING_BYTES:
+        # dense: Z = S⁻ Y by BLAS, then block i = Σ_rows Y[:, 3i:3i+3]ᵀ Z[:, 3i:3i+3]
+        dense = np.zeros((n, 6, m, 3))
+        dense[obs.cameras, :, obs.points, :] = Y
+        flat = dense.reshape(6 * n, 3 * m)
+        return np.einsum("ami,amj->mij", flat.reshape(6 * n, m, 3), (S_g @ flat).reshape(6 * n, m, 3))
+    # sparse: only the camera pairs that share a point, Σ over pairs (a, b) of Y_aᵀ S⁻[c_a, c_b] Y_b
+    first, second = _observation_pairs(obs.points, m)
+    S_blocks = S_g.reshape(n, 6, n, 6)
+    out = np.zeros((m, 3, 3))
+    for start in range(0, len(first), _PAIR_CHUNK):
+        a, b = first[start:start + _PAIR_CHUNK], second[start:start + _PAIR_CHUNK]
+        term = (np.swapaxes(Y[a], 1, 2) @ S_blocks[obs.cameras[a], :, obs.cameras[b], :]) @ Y[b]
+        out += _accumulate(obs.points[a], term, m)
+    return out
+
+
 def _observation_pairs(points: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
     """All ordered pairs (a, b) of observations of the same point (a = b included)."""
     order = np.argsort(points, kind="stable")
@@ -569,13 +588,7 @@ def free_network_covariances(rotations: object, centres: object, points: object,
     # (S + c Q Qᵀ)⁻¹ is a generalised inverse of S whose null space is span(Q); c only sets its scale
     S_g = np.linalg.inv(S + Q @ Q.T * (np.trace(S) / (6 * n)))
     # diagonal blocks of N⁻_pp = V⁻¹ + Σ_ab Y_aᵀ S⁻[c_a, c_b] Y_b over observation pairs of each point
-    first, second = _observation_pairs(obs.points, m)
-    S_blocks = S_g.reshape(n, 6, n, 6)
-    point_cov = V_inv.copy()
-    for start in range(0, len(first), _PAIR_CHUNK):
-        a, b = first[start:start + _PAIR_CHUNK], second[start:start + _PAIR_CHUNK]
-        term = np.einsum("pki,pkl,plj->pij", Y[a], S_blocks[obs.cameras[a], :, obs.cameras[b], :], Y[b])
-        point_cov += _accumulate(obs.points[a], term, m)
+    point_cov = V_inv + _coupled_diagonal_blocks(obs, n, m, Y, S_g)
     # M = N⁻_pp H with H an orthonormal basis of the point part of the gauge directions
     G_flat = G.reshape(3 * m, 7)
     H, _ = np.linalg.qr(G_flat)
