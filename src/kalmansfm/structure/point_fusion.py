@@ -60,7 +60,7 @@ covariances are scaled by the final σ².
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
@@ -1065,8 +1065,7 @@ def fuse_with_settings(observations: object, cameras: CameraSet | object, settin
     slices = _chunks(N, settings.chunk_points)
 
     def run(sigma: float, gate2: float, gate1: float, keep_history: bool) -> list[_ChunkResult]:
-        jobs: Iterator[_Chunk] = (_Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history)
-                                  for s in slices)
+        jobs = [_Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history) for s in slices]
         mapper = map if executor is None else executor.map
         return list(mapper(_run_chunk, jobs))
 
