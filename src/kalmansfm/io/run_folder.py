@@ -28,7 +28,7 @@ from .tracks import read_tracks_npz
 __all__ = ["CsvTable", "RunFolder", "load_run", "RUN_FIGURES"]
 
 #: Pre-rendered figures a run may carry, embedded in the report as they are.
-RUN_FIGURES = ("covariance_trace.png", "tracks.png", "structure.png")
+RUN_FIGURES = ("covariance_trace.png", "tracks.png", "structure.png", "fusion.png")
 
 _FRAME_NAME = re.compile(r"^frames/frame_(\d+)\.png$")
 
@@ -99,7 +99,8 @@ def load_run(run_dir: str | Path) -> RunFolder:
         Folder with ``summary.json``; of the files it lists, these are read:
         ``frames/frame_NNN.png``, ``tracks.npz``, ``structure.csv``, ``motion.csv``,
         ``ground_truth_tracks.csv``, ``ground_truth_points.csv``, ``fusion_tables/*.csv``
-        and the pre-rendered figures ``covariance_trace.png``, ``tracks.png``, ``structure.png``.
+        and the pre-rendered figures ``covariance_trace.png``, ``tracks.png``, ``structure.png``,
+        ``fusion.png``.
 
     Raises
     ------

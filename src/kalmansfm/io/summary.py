@@ -32,6 +32,7 @@ __all__ = [
     "TrackMetrics",
     "TrackingMetrics",
     "StructureMetrics",
+    "FusionMetrics",
     "Similarity",
     "TruthComparison",
     "read_summary",
@@ -120,6 +121,47 @@ class StructureMetrics:
 
 
 @dataclass(frozen=True)
+class FusionMetrics:
+    """Structure fusion with known cameras (``kalmansfm fuse``).
+
+    Attributes
+    ----------
+    method : ``"recursive"``, ``"batch"`` or ``"pairs"``.
+    cameras : views fused (frames with both a camera and observations).
+    points : tracks read; ``fused``, ``too_few_views``, ``degenerate``, ``behind_camera`` count them by status.
+    observations : measured positions in the fused views; ``rejected`` of them were outliers.
+    pixel_std_px : the image noise σ the covariances use; ``pixel_std_estimated`` when it came from
+        the residuals (2 degrees of freedom per observation minus 3 per point, after rejection).
+    degrees_of_freedom : 2 × accepted observations - 3 × fused points.
+    outlier_probability : the χ² gate's probability (1: no outlier test).
+    reprojection_rms_px : RMS reprojection error over the accepted observations of the fused points.
+    median_std : median over fused points of the RMS axis standard deviation √(tr Σ / 3), in world units.
+    orientation : +1, or -1 when the cameras' reconstruction is mirrored (points at negative depth).
+    passes : passes over the data (more than one when σ was estimated).
+    frames_without_camera : frames of the tracks that had observations but no camera (skipped).
+    """
+
+    method: str
+    cameras: int
+    points: int
+    fused: int
+    too_few_views: int
+    degenerate: int
+    behind_camera: int
+    observations: int
+    rejected: int
+    pixel_std_px: float
+    pixel_std_estimated: bool
+    degrees_of_freedom: int
+    outlier_probability: float
+    reprojection_rms_px: float | None
+    median_std: float | None
+    orientation: int
+    passes: int
+    frames_without_camera: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
 class Similarity:
     """``target ≈ scale * rotation @ source + translation``; ``rotation`` may be a reflection (det -1)."""
 
@@ -175,7 +217,7 @@ class RunSummary:
 
     Attributes
     ----------
-    command : the command that made the run (``demo``, ``track``, ``reconstruct``, ``scene``, ``batch``).
+    command : the command that made the run (``demo``, ``track``, ``reconstruct``, ``fuse``, ``scene``, ``batch``).
     input : what was read: a path, or a description of the built-in scene.
     created : ISO time stamp (UTC).
     versions : software versions.
@@ -183,6 +225,7 @@ class RunSummary:
     smoothed : the tracks were RTS-smoothed (True or the lag) or not.
     tracking : tracking statistics.
     structure : the factorization's figures.
+    fusion : structure fusion with known cameras (``fuse``).
     structure_error : why there is no structure when factorization was attempted and failed.
     truth : the comparison with ground truth, when there is one.
     scene : the parameters of a rendered built-in scene.
@@ -201,6 +244,7 @@ class RunSummary:
     smoothed: bool | int = False
     tracking: TrackingMetrics | None = None
     structure: StructureMetrics | None = None
+    fusion: FusionMetrics | None = None
     structure_error: str | None = None
     truth: TruthComparison | None = None
     scene: Any = None

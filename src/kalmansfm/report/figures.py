@@ -31,6 +31,7 @@ __all__ = [
     "track_error_per_frame",
     "track_error_figure",
     "rotation_error_figure",
+    "fusion_convergence_figure",
 ]
 
 
@@ -232,4 +233,38 @@ def rotation_error_figure(errors_deg: Sequence[float]) -> bytes:
     ax.set_xlabel("frame")
     ax.set_ylabel("rotation error (deg)")
     ax.grid(alpha=0.3)
+    return _figure_png(fig)
+
+
+def fusion_convergence_figure(views_used: np.ndarray, uncertainty: np.ndarray, points: np.ndarray,
+                              *, sample: int = 25) -> bytes | None:
+    """How each point's uncertainty shrinks as views are fused (the paper's convergence picture).
+
+    ``views_used`` (H,) is the number of observations behind each history entry,
+    ``uncertainty`` (H,) its √(tr Σ / 3) and ``points`` (H,) the point it belongs to.
+    Draws the median and the quartiles over points per number of views, and the paths of
+    up to ``sample`` points (the ones with the most views).
+    """
+    n, u, p = np.asarray(views_used), np.asarray(uncertainty, dtype=float), np.asarray(points)
+    good = np.isfinite(u) & (u > 0)
+    if not good.any():
+        return None
+    n, u, p = n[good], u[good], p[good]
+    counts = np.arange(n.min(), n.max() + 1)
+    quartiles = np.array([np.quantile(u[n == k], [0.25, 0.5, 0.75]) if (n == k).any() else [np.nan] * 3
+                          for k in counts])
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    order = np.argsort(-np.bincount(p, minlength=p.max() + 1), kind="stable")[:sample]
+    for k, point in enumerate(order):
+        mine = p == point
+        if mine.sum() > 1:
+            ax.plot(n[mine], u[mine], color="#999999", lw=0.6, alpha=0.6, label="single points" if k == 0 else None)
+    ax.fill_between(counts, quartiles[:, 0], quartiles[:, 2], color="#1f77b4", alpha=0.25, label="quartiles")
+    ax.plot(counts, quartiles[:, 1], color="#1f77b4", marker="o", label="median over points")
+    ax.set_yscale("log")
+    ax.set_xlabel("views fused")
+    ax.set_ylabel("uncertainty √(tr Σ / 3)")
+    ax.set_xticks(counts if len(counts) <= 20 else counts[:: max(1, len(counts) // 10)])
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
     return _figure_png(fig)

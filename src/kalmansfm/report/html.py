@@ -145,6 +145,12 @@ def _section_header(run: RunFolder) -> str:
         cards.append(("estimates within 2 px of truth", _percent(truth.within_2px)))
     if structure is not None and _is_number(structure.residual_rms_px):
         cards.append(("factorization residual RMS", f"{structure.residual_rms_px:.3g} px"))
+    fusion = s.fusion
+    if fusion is not None:
+        cards.append(("points fused", f"{fusion.fused} of {fusion.points}"))
+        cards.append(("pixel noise σ" + (" (estimated)" if fusion.pixel_std_estimated else ""),
+                      f"{fusion.pixel_std_px:.3g} px"))
+        cards.append(("observations rejected", f"{fusion.rejected} of {fusion.observations}"))
     if truth is not None and _is_number(truth.shape_error_pct):
         cards.append(("3D shape error vs truth", f"{truth.shape_error_pct:.2f} %"))
     total = _total_seconds(s)
@@ -532,6 +538,36 @@ def _section_ground_truth(run: RunFolder) -> str | None:
     return "".join(parts) or None
 
 
+def _section_fusion(run: RunFolder) -> str | None:
+    fusion = run.summary.fusion
+    if fusion is None:
+        return None
+    facts: list[tuple[str, Any]] = [
+        ("method", fusion.method),
+        ("cameras (views) fused", fusion.cameras),
+        ("points: fused / too few views / degenerate / behind camera",
+         f"{fusion.fused} / {fusion.too_few_views} / {fusion.degenerate} / {fusion.behind_camera}"),
+        ("observations used / rejected as outliers", f"{fusion.observations - fusion.rejected} / {fusion.rejected}"),
+        ("pixel noise σ (px)" + (", estimated from the residuals" if fusion.pixel_std_estimated else ", given"),
+         fusion.pixel_std_px),
+        ("degrees of freedom (2 per observation − 3 per point)", fusion.degrees_of_freedom),
+        ("outlier test probability (χ² gate)", fusion.outlier_probability),
+        ("reprojection RMS of the accepted observations (px)", fusion.reprojection_rms_px),
+        ("median point uncertainty √(tr Σ / 3)", fusion.median_std),
+        ("scene orientation", "mirrored (points at negative depth)" if fusion.orientation < 0 else "normal"),
+    ]
+    parts = [_table(["", "value"], facts)]
+    if fusion.frames_without_camera:
+        shown = ", ".join(str(f) for f in fusion.frames_without_camera[:10])
+        more = " …" if len(fusion.frames_without_camera) > 10 else ""
+        parts.append(f'<p class="warn">Frames with observations but no camera, skipped: {_esc(shown)}{more}</p>')
+    if "fusion.png" in run.figures:
+        parts.append(_figure(run.figures["fusion.png"].read_bytes(),
+                             "Each point's uncertainty as views are fused: median and quartiles over points, "
+                             "and the paths of the points seen most often."))
+    return "".join(parts)
+
+
 def _section_tables(run: RunFolder) -> str | None:
     parts = []
     for table in run.fusion_tables:
@@ -572,6 +608,7 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         ("uncertainty", "Uncertainty over time", lambda: _section_uncertainty(run)),
         ("tracks", "Tracking statistics", lambda: _section_tracks(run)),
         ("factorization", "Factorization", lambda: _section_factorization(run)),
+        ("fusion", "Structure fusion with known cameras", lambda: _section_fusion(run)),
         ("shape", "Recovered 3D shape", lambda: _section_shape(run)),
         ("motion", "Recovered camera motion", lambda: _section_motion(run)),
         ("ground-truth", "Comparison with ground truth", lambda: _section_ground_truth(run)),

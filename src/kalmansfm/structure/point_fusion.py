@@ -60,7 +60,7 @@ covariances are scaled by the final σ².
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
@@ -80,7 +80,13 @@ from .pinhole import (
     refine_points,
     triangulate_points,
 )
-from .triangulation import TRIANGULATION_PARALLEL_RAYS, triangulate_midpoint
+from .triangulation import (
+    TRIANGULATION_BEHIND_CAMERA,
+    TRIANGULATION_NOT_OBSERVED,
+    TRIANGULATION_OK,
+    TRIANGULATION_PARALLEL_RAYS,
+    triangulate_midpoint,
+)
 
 __all__ = [
     "DEFAULT_CHUNK_POINTS",
@@ -89,7 +95,10 @@ __all__ = [
     "FusedStructure",
     "FusionHistory",
     "FusionSettings",
+    "PairTriangulations",
     "fuse",
+    "fuse_with_settings",
+    "pair_triangulations",
 ]
 
 FUSION_METHODS = ("recursive", "batch", "pairs")
@@ -123,6 +132,8 @@ class FusionSettings:
         (1 turns outlier rejection off).
     history : keep every point's estimate after every view that observed it.
     chunk_points : points processed together (bounds the memory).
+    orientation : +1 (points in front of the cameras), -1 (a mirrored reconstruction) or
+        None to take the sign most points' depths agree on.
     """
 
     method: str = "recursive"
@@ -130,6 +141,7 @@ class FusionSettings:
     outlier_probability: float = DEFAULT_OUTLIER_PROBABILITY
     history: bool = False
     chunk_points: int = DEFAULT_CHUNK_POINTS
+    orientation: int | None = None
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
@@ -146,6 +158,8 @@ class FusionSettings:
         object.__setattr__(self, "outlier_probability", p)
         object.__setattr__(self, "chunk_points", check_count("chunk_points", self.chunk_points, 1))
         object.__setattr__(self, "history", bool(self.history))
+        if self.orientation is not None:
+            object.__setattr__(self, "orientation", _check_orientation(self.orientation))
 
     @property
     def gate2(self) -> float:
@@ -170,22 +184,31 @@ class FusionHistory:
     points : (H,) int64 — point index.
     estimates : (H, 3) — NaN where the estimate has no finite (X, Y, Z) yet (depth undetermined).
     covariances : (H, 3, 3).
+    states, state_covariances : (H, 3), (H, 3, 3) or None — for ``recursive``, the filter's own
+        state: the inverse depth (α, β, ρ) in the anchor view (X = C_a + o R_aᵀ (α, β, 1) / ρ).
+    anchors : (H,) int or None — the anchor view of each state.
     """
 
     views: np.ndarray
     points: np.ndarray
     estimates: np.ndarray
     covariances: np.ndarray
+    states: np.ndarray | None = None
+    state_covariances: np.ndarray | None = None
+    anchors: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.views.shape[0])
 
-    def dense(self, n_views: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
-        """(V, N, 3) estimates and (V, N, 3, 3) covariances, NaN where the history has no entry."""
+    def dense(self, n_views: int, n_points: int, *, states: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(V, N, 3) estimates and (V, N, 3, 3) covariances (the filter states with ``states``), NaN where none."""
+        values, covariances = (self.states, self.state_covariances) if states else (self.estimates, self.covariances)
+        if values is None:
+            raise InvalidInputError("this history has no filter states (only method='recursive' keeps them)")
         X = np.full((n_views, n_points, 3), np.nan)
         C = np.full((n_views, n_points, 3, 3), np.nan)
-        X[self.views, self.points] = self.estimates
-        C[self.views, self.points] = self.covariances
+        X[self.views, self.points] = values
+        C[self.views, self.points] = covariances
         return X, C
 
     def first(self) -> FusionHistory:
@@ -193,7 +216,12 @@ class FusionHistory:
         order = np.lexsort((self.views, self.points))
         pts = self.points[order]
         keep = order[np.r_[True, pts[1:] != pts[:-1]]] if pts.size else order
-        return FusionHistory(self.views[keep], self.points[keep], self.estimates[keep], self.covariances[keep])
+        return self._take(keep)
+
+    def _take(self, index: np.ndarray) -> FusionHistory:
+        return FusionHistory(*(None if a is None else a[index] for a in (
+            self.views, self.points, self.estimates, self.covariances, self.states, self.state_covariances,
+            self.anchors)))
 
 
 @dataclass(frozen=True)
@@ -284,16 +312,17 @@ def _geometry(P: np.ndarray, orientation: int) -> _Geometry:
 
 def _theta_to_point(g: _Geometry, anchor: np.ndarray, theta: np.ndarray, cov: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """(X, Y, Z) and its covariance from inverse depth, by second-order propagation; NaN where ρ <= 0.
+    """(X, Y, Z) and its covariance from inverse depth; NaN where ρ <= 0.
 
     In the anchor's oriented frame the point is Y = (α, β, 1) / ρ, and X = C_a + o R_aᵀ Y.
-    With G = dY/dθ and H_i the Hessian of Y_i, the Gaussian N(θ̂, P) maps to
+    The estimate is the state's image Y(θ̂) (so exact data give the exact point, and the
+    estimate is the maximum-likelihood point whenever θ̂ is).  The covariance is the
+    second-order image of N(θ̂, P): with G = dY/dθ and H_i the Hessian of Y_i,
 
-        mean_i = Y_i(θ̂) + ½ tr(H_i P),    cov = G P Gᵀ + ½ [tr(H_i P H_j P)]_ij
+        cov = G P Gᵀ + ½ [tr(H_i P H_j P)]_ij
 
-    (the first-order image alone is over-confident when σ_ρ / ρ is not small: the
-    depth 1/ρ is skewed towards the far side).  Both terms vanish to first order
-    as P → 0, where this is the ordinary linearisation.
+    The first-order term alone is over-confident when σ_ρ / ρ is not small (the depth
+    1/ρ is skewed towards the far side); the second term vanishes with P.
     """
     a, b, rho = theta[:, 0], theta[:, 1], theta[:, 2]
     ok = rho > 0
@@ -306,7 +335,7 @@ def _theta_to_point(g: _Geometry, anchor: np.ndarray, theta: np.ndarray, cov: np
     Hs[:, 0, 0, 2] = Hs[:, 0, 2, 0] = Hs[:, 1, 1, 2] = Hs[:, 1, 2, 1] = -1.0 / r**2
     Hs[:, 0, 2, 2], Hs[:, 1, 2, 2], Hs[:, 2, 2, 2] = 2 * a / r**3, 2 * b / r**3, 2.0 / r**3
     HP = Hs @ cov[:, None]  # (n, 3, 3, 3)
-    Y = np.stack([a, b, np.ones_like(a)], axis=1) / r[:, None] + 0.5 * np.trace(HP, axis1=2, axis2=3)
+    Y = np.stack([a, b, np.ones_like(a)], axis=1) / r[:, None]
     # tr(H_i P H_j P) = Σ_ab (H_i P)_ab (H_j P)_ba, as one batched (3 × 9)(9 × 3) product
     second = HP.reshape(n, 3, 9) @ np.swapaxes(HP, 2, 3).reshape(n, 3, 9).transpose(0, 2, 1)
     cov_Y = G @ cov @ np.swapaxes(G, 1, 2) + 0.5 * second
@@ -775,38 +804,106 @@ def _pair_triangulation(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.nda
     return X, cov, tri.status
 
 
+def _pair_table(g: _Geometry, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every point's consecutive observations (u, v) triangulated, stored at view v (unit-σ covariances).
+
+    Returns points (V, n, 3), covariances (V, n, 3, 3), status (V, n) and the pair's first
+    view (V, n), -1 and TRIANGULATION_NOT_OBSERVED where no pair ends at v.
+    """
+    V, n, _ = obs.shape
+    seen_all = np.isfinite(obs).all(axis=2)
+    X = np.full((V, n, 3), np.nan)
+    C = np.full((V, n, 3, 3), np.nan)
+    status = np.full((V, n), TRIANGULATION_NOT_OBSERVED, dtype=np.int8)
+    previous = np.full((V, n), -1)
+    last = np.full(n, -1)
+    for v in range(V):
+        idx = np.flatnonzero(seen_all[v] & (last >= 0))
+        for a in np.unique(last[idx]):  # one group per earlier view, not per point
+            sel = idx[last[idx] == a]
+            X[v, sel], C[v, sel], status[v, sel] = _pair_triangulation(g, int(a), v, obs[a, sel], obs[v, sel])
+            previous[v, sel] = a
+        last[seen_all[v]] = v
+    return X, C, status, previous
+
+
+@dataclass(frozen=True)
+class PairTriangulations:
+    """The report's two-view measurements: each point's consecutive observations triangulated.
+
+    Attributes
+    ----------
+    points : (V, N, 3) — at view v, the midpoint triangulation (report eqs. 29-31) of the
+        point's previous observation and its observation in v, world coordinates; NaN where
+        no pair ends at v or the rays are parallel.
+    covariances : (V, N, 3, 3) — first-order covariance (eq. 34) at pixel noise σ.
+    status : (V, N) int8 — ``TRIANGULATION_OK``, ``..._PARALLEL_RAYS``, ``..._BEHIND_CAMERA`` or
+        ``TRIANGULATION_NOT_OBSERVED`` (:mod:`~kalmansfm.structure.triangulation`).
+    previous : (V, N) int — the view of the pair's first observation, -1 where none.
+    """
+
+    points: np.ndarray
+    covariances: np.ndarray
+    status: np.ndarray
+    previous: np.ndarray
+
+
+def pair_triangulations(observations: object, cameras: CameraSet | object, pixel_std: float = 1.0,
+                        orientation: int | None = None) -> PairTriangulations:
+    """Triangulate every point's consecutive observations, two views at a time (the ``pairs`` method's measurements).
+
+    Parameters
+    ----------
+    observations : (V, N, 2) pixels, NaN where unseen (views in the order of ``cameras``).
+    cameras : CameraSet or (V, 3, 4).
+    pixel_std : float > 0 — σ of the pixel noise the covariances are scaled with.
+    orientation : +1, -1 or None (from the data, as :func:`fuse`).
+
+    Examples
+    --------
+    >>> from kalmansfm.structure.pinhole import project_points
+    >>> cams = CameraSet.from_pose(np.diag([500.0, 500.0, 1.0]), np.stack([np.eye(3)] * 3),
+    ...                            [[0.0, 0, 0], [-1.0, 0, 0], [-2.0, 0, 0]])
+    >>> pairs = pair_triangulations(project_points(cams, [[0.5, 0.2, 10.0]]).pixels, cams)
+    >>> pairs.points[2, 0].round(6).tolist(), pairs.previous[:, 0].tolist()
+    ([0.5, 0.2, 10.0], [-1, 0, 1])
+    """
+    cams, obs = _validate(observations, cameras)
+    sigma = check_positive("pixel_std", pixel_std, "pixels")
+    g = _geometry(cams.matrices, _orientation(cams, obs) if orientation is None else _check_orientation(orientation))
+    X, C, status, previous = _pair_table(g, obs)
+    return PairTriangulations(X, C * sigma**2, status, previous)
+
+
 def _pairs(job: _Chunk) -> _ChunkResult:
     g, obs = job.geometry, job.observations
     V, n, _ = obs.shape
     seen_all = np.isfinite(obs).all(axis=2)
+    p, R, st, previous = _pair_table(g, obs)
+    finite = np.isfinite(R).all(axis=(2, 3))
+    # a singular first-order covariance (e.g. a point on the baseline) cannot be fused
+    usable = ((st == TRIANGULATION_OK) | (st == TRIANGULATION_BEHIND_CAMERA)) & finite
+    usable &= np.linalg.eigvalsh(np.where(usable[..., None, None], R, np.eye(3)))[..., 0] > 0
     x = np.full((n, 3), np.nan)
     P = np.full((n, 3, 3), np.nan)
     started = np.zeros(n, dtype=bool)
     used = np.zeros((V, n), dtype=bool)
-    prev = np.full(n, -1)
     hist = []
     for v in range(V):
-        seen = seen_all[v]
-        idx = np.flatnonzero(seen & (prev >= 0))
-        for a in np.unique(prev[idx]):
-            sel = idx[prev[idx] == a]
-            p, R, st = _pair_triangulation(g, int(a), v, obs[a, sel], obs[v, sel])
-            good = (st != TRIANGULATION_PARALLEL_RAYS) & (np.linalg.eigvalsh(np.where(
-                np.isfinite(R).all(axis=(1, 2))[:, None, None], R, np.eye(3)))[:, 0] > 0)
-            good &= np.isfinite(R).all(axis=(1, 2))
-            sel, p, R = sel[good], p[good], R[good]
-            first = ~started[sel]
-            s0, s1 = sel[first], sel[~first]
-            x[s0], P[s0] = p[first], R[first]
-            if s1.size:
-                # the report's fusion: the pair triangulation is a direct measurement of the point
-                res = kalman_update(x[s1], P[s1], p[~first], np.eye(3), R[~first])
-                x[s1], P[s1] = res.x, res.P
-            started[sel] = True
-            used[a, sel] = used[v, sel] = True
-            if job.history and sel.size:
-                hist.append((v, sel, x[sel].copy(), P[sel].copy()))
-        prev[seen] = v
+        sel = np.flatnonzero(usable[v])
+        if sel.size == 0:
+            continue
+        first = ~started[sel]
+        s0, s1 = sel[first], sel[~first]
+        x[s0], P[s0] = p[v, s0], R[v, s0]
+        if s1.size:
+            # the report's fusion: the pair triangulation is a direct measurement of the point
+            res = kalman_update(x[s1], P[s1], p[v, s1], np.eye(3), R[v, s1])
+            x[s1], P[s1] = res.x, res.P
+        started[sel] = True
+        used[previous[v, sel], sel] = used[v, sel] = True
+        if job.history:
+            hist.append((v, sel, x[sel].copy(), P[sel].copy()))
     status = np.full(n, PointStatus.OK, dtype=np.int8)
     views = seen_all.sum(axis=0)
     status[~started] = np.where(views[~started] >= 2, PointStatus.DEGENERATE, PointStatus.TOO_FEW_VIEWS)
@@ -853,6 +950,12 @@ def _orientation(cams: CameraSet, obs: np.ndarray) -> int:
     return triangulate_points(cams, obs[:, sample]).orientation
 
 
+def _check_orientation(orientation: object) -> int:
+    if orientation not in (1, -1) or isinstance(orientation, bool):
+        raise InvalidInputError(f"orientation must be +1, -1 or None; got {orientation!r}")
+    return int(orientation)  # type: ignore[arg-type]
+
+
 def _chunks(n: int, size: int) -> list[slice]:
     return [slice(s, min(s + size, n)) for s in range(0, n, size)] or [slice(0, 0)]
 
@@ -878,6 +981,7 @@ def fuse(
     history: bool = False,
     *,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
+    orientation: int | None = None,
     executor: Executor | None = None,
 ) -> FusedStructure:
     """Fuse each point's observations over many views with known cameras into a 3-D point and its covariance.
@@ -904,6 +1008,9 @@ def fuse(
         Also return every point's estimate after every view that observed it.
     chunk_points : int
         Points processed together; bounds the memory.
+    orientation : +1, -1 or None
+        +1: points lie in front of the cameras (positive depth with P = λ K [R | t]);
+        -1: a mirrored reconstruction; None: the sign most points agree on.
     executor : concurrent.futures.Executor, optional
         Runs the chunks (e.g. ``dask.distributed.Client.get_executor()``); by
         default they run one after the other here.
@@ -943,7 +1050,8 @@ def fuse(
     auto = isinstance(pixel_std, str)
     if auto and pixel_std != "auto":
         raise InvalidInputError(f"pixel_std must be a number (pixels) or 'auto'; got {pixel_std!r}")
-    settings = FusionSettings(method, None if auto else pixel_std, outlier_probability, history, chunk_points)
+    settings = FusionSettings(method, None if auto else pixel_std, outlier_probability, history, chunk_points,
+                              orientation)
     return fuse_with_settings(observations, cameras, settings, executor=executor)
 
 
@@ -951,13 +1059,13 @@ def fuse_with_settings(observations: object, cameras: CameraSet | object, settin
                        executor: Executor | None = None) -> FusedStructure:
     """:func:`fuse` with its options given as one :class:`FusionSettings`."""
     cams, obs = _validate(observations, cameras)
-    geometry = _geometry(cams.matrices, _orientation(cams, obs))
+    orientation = _orientation(cams, obs) if settings.orientation is None else settings.orientation
+    geometry = _geometry(cams.matrices, orientation)
     V, N, _ = obs.shape
     slices = _chunks(N, settings.chunk_points)
 
     def run(sigma: float, gate2: float, gate1: float, keep_history: bool) -> list[_ChunkResult]:
-        jobs: Iterator[_Chunk] = (_Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history)
-                                  for s in slices)
+        jobs = [_Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history) for s in slices]
         mapper = map if executor is None else executor.map
         return list(mapper(_run_chunk, jobs))
 
@@ -1043,11 +1151,15 @@ def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult
         parts = [(r.history, s.start) for r, s in zip(results, slices)]
         hv = np.concatenate([h[0] for h, _ in parts]).astype(np.int64)
         hp = np.concatenate([h[1] + start for h, start in parts]).astype(np.int64)
-        states = [_to_points(g, None if r.anchors is None else r.anchors[r.history[1]], r.history[2], r.history[3],
-                             sigma) for r in results]
-        hx = np.concatenate([x for x, _ in states])
-        hc = np.concatenate([c for _, c in states])
-        order = np.lexsort((hp, hv))
-        hist = FusionHistory(hv[order], hp[order], hx[order], hc[order])
+        converted = [_to_points(g, None if r.anchors is None else r.anchors[r.history[1]], r.history[2],
+                                r.history[3], sigma) for r in results]
+        hx = np.concatenate([x for x, _ in converted])
+        hc = np.concatenate([c for _, c in converted])
+        extra: tuple = (None, None, None)
+        if results[0].anchors is not None:
+            extra = (np.concatenate([r.history[2] for r in results]),
+                     np.concatenate([r.history[3] for r in results]) * sigma**2,
+                     np.concatenate([r.anchors[r.history[1]] for r in results]))
+        hist = FusionHistory(hv, hp, hx, hc, *extra)._take(np.lexsort((hp, hv)))
     return FusedStructure(settings.method, points, cov, status, views, rms, lengths, rejected, float(sigma),
                           estimated, dof, g.orientation, passes, hist)
