@@ -23,11 +23,14 @@ from .estimation import (
 from .pipeline import DemoRun, run_demo
 from .structure import (
     LandmarkEstimates,
+    PerspectiveReconstruction,
+    PerspectiveSettings,
     Reconstruction,
     TriangulationResult,
     align_similarity,
     estimate_landmarks,
     factorize,
+    reconstruct_perspective,
     triangulate_midpoint,
 )
 from .tracking import Tracker, TrackerSettings, Tracks, TrackStatus, track
@@ -43,6 +46,8 @@ __all__ = [
     "LandmarkEstimates",
     "LinearGaussianModel",
     "NotEnoughDataError",
+    "PerspectiveReconstruction",
+    "PerspectiveSettings",
     "Reconstruction",
     "SingularCovarianceError",
     "SmoothedRun",
@@ -58,6 +63,7 @@ __all__ = [
     "factorize",
     "fuse_closed_form",
     "fuse_recursive",
+    "reconstruct_perspective",
     "run_demo",
     "smooth",
     "track",

@@ -16,6 +16,7 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from .._validation import as_float_array, check_count, check_positive
 
 __all__ = [
+    "COVARIANCE_GAUGE",
     "DEFAULT_OUTLIER_THRESHOLD_PX",
     "PERSPECTIVE_METHODS",
     "FrameStatus",
@@ -25,6 +26,9 @@ __all__ = [
     "validate_tracks_and_intrinsics",
 ]
 
+#: how the point covariances are to be read (written into summary.json and the PLY header).
+COVARIANCE_GAUGE = ("free-network gauge: the covariance of each point after a least-squares similarity "
+                    "alignment (translation, rotation, scale) of all reconstructed points onto any reference")
 #: the methods of :func:`reconstruct_perspective`.
 PERSPECTIVE_METHODS = ("batch", "recursive")
 #: an observation farther than this from where the other views put its point is an outlier (pixels).
@@ -133,6 +137,8 @@ class PerspectiveReconstruction:
         for unregistered frames.
     frame_status : (F,) int8 — :class:`FrameStatus` values.
     inliers : (F, P) bool — observations used in the final estimate.
+    point_reprojection_rms : (P,) — RMS length of each point's reprojection errors over its
+        inliers (pixels); NaN where not reconstructed.
     pixel_std : σ of the image noise estimated from the inlier residuals (pixels).
     reprojection_rms : RMS length of the 2-D reprojection error over the inliers (pixels).
     degrees_of_freedom : 2 × inliers − 6 × cameras − 3 × points + 7.
@@ -151,6 +157,7 @@ class PerspectiveReconstruction:
     camera_covariances: np.ndarray
     frame_status: np.ndarray
     inliers: np.ndarray
+    point_reprojection_rms: np.ndarray
     pixel_std: float
     reprojection_rms: float
     degrees_of_freedom: int
@@ -214,3 +221,15 @@ def validate_tracks_and_intrinsics(observations: object, intrinsics: object) -> 
         raise InvalidInputError(f"intrinsics of frame {f} must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 "
                                 f"(a singular or malformed K); got {K[f].tolist()}")
     return obs, K
+
+
+def residual_rms_per_point(observations: np.ndarray, intrinsics: np.ndarray, rotations: np.ndarray,
+                           translations: np.ndarray, points: np.ndarray, inliers: np.ndarray) -> np.ndarray:
+    """(P,) RMS reprojection error length of each point over its inlier observations (NaN without any)."""
+    frames, tracks = np.nonzero(inliers)
+    x_cam = np.einsum("nij,nj->ni", rotations[frames], points[tracks]) + translations[frames]
+    pix = np.einsum("nij,nj->ni", intrinsics[frames], x_cam)
+    sq = np.sum((pix[:, :2] / pix[:, 2:] - observations[frames, tracks]) ** 2, axis=1)
+    count = np.bincount(tracks, minlength=points.shape[0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.bincount(tracks, weights=sq, minlength=points.shape[0]) / count)

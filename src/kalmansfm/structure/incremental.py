@@ -13,7 +13,13 @@ import numpy as np
 
 from ..errors import NotEnoughDataError
 from .bundle import ObservationList, bundle_adjust, free_network_covariances, reprojection_residuals
-from .calibrated import FrameStatus, PerspectiveReconstruction, PerspectiveSettings, ReconstructedPointStatus
+from .calibrated import (
+    FrameStatus,
+    PerspectiveReconstruction,
+    PerspectiveSettings,
+    ReconstructedPointStatus,
+    residual_rms_per_point,
+)
 from .pinhole import CameraSet, PointStatus, triangulate_points
 from .point_fusion import fuse
 
@@ -359,9 +365,10 @@ class _Incremental:
         degenerate = ~self.has_point & ((self.seen & self.inlier)[frames].sum(axis=0) >= 2)
         status[degenerate] = ReconstructedPointStatus.DEGENERATE
         self._warn()
+        point_rms = residual_rms_per_point(self.obs, self.K, R, t, X, inliers)
         return PerspectiveReconstruction(method, X, point_cov, status, views, R, t, cam_cov,
-                                         self.frame_status.copy(), inliers, sigma, rms, dof, self.initial_pair,
-                                         tuple(self.warnings), dict(self.timings))
+                                         self.frame_status.copy(), inliers, point_rms, sigma, rms, dof,
+                                         self.initial_pair, tuple(self.warnings), dict(self.timings))
 
     def _warn(self) -> None:
         missing = np.flatnonzero(~self.registered)

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 from .bundle import single_threaded_blas
 from .calibrated import (
+    COVARIANCE_GAUGE,
     DEFAULT_OUTLIER_THRESHOLD_PX,
     PERSPECTIVE_METHODS,
     FrameStatus,
@@ -58,6 +59,7 @@ from .incremental import reconstruct_incremental
 from .recursive import reconstruct_recursive
 
 __all__ = [
+    "COVARIANCE_GAUGE",
     "DEFAULT_OUTLIER_THRESHOLD_PX",
     "PERSPECTIVE_METHODS",
     "FrameStatus",

@@ -53,7 +53,13 @@ from .bundle import (
     reprojection_residuals,
     similarity_free_covariances,
 )
-from .calibrated import FrameStatus, PerspectiveReconstruction, PerspectiveSettings, ReconstructedPointStatus
+from .calibrated import (
+    FrameStatus,
+    PerspectiveReconstruction,
+    PerspectiveSettings,
+    ReconstructedPointStatus,
+    residual_rms_per_point,
+)
 from .incremental import relative_pose
 from .point_fusion import _iterated_update
 from .rotation import cross_matrix
@@ -301,5 +307,7 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
         warnings.append(f"{missing.size} of {F} frames could not be registered (frames {missing[0]}-{missing[-1]}): "
                         "the chain of relative orientations stopped; they have no pose")
     t = -np.einsum("fij,fj->fi", R_chain, C_chain)
+    point_rms = residual_rms_per_point(obs, K, R_chain, t, points, inliers)
     return PerspectiveReconstruction("recursive", points, point_cov, status, inliers.sum(axis=0), R_chain, t,
-                                     cam_cov, frame_status, inliers, sigma, rms, int(dof), (0, 1), tuple(warnings))
+                                     cam_cov, frame_status, inliers, point_rms, sigma, rms, int(dof), (0, 1),
+                                     tuple(warnings))
