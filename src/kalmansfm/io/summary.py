@@ -33,6 +33,7 @@ __all__ = [
     "TrackingMetrics",
     "StructureMetrics",
     "FusionMetrics",
+    "PerspectiveMetrics",
     "Similarity",
     "TruthComparison",
     "read_summary",
@@ -162,6 +163,52 @@ class FusionMetrics:
 
 
 @dataclass(frozen=True)
+class PerspectiveMetrics:
+    """Calibrated reconstruction with unknown motion (``reconstruct --camera perspective``).
+
+    Attributes
+    ----------
+    method : ``"batch"`` (bundle adjustment) or ``"recursive"`` (relative orientations + recursive fusion).
+    intrinsics : where K came from (a K.csv, or the focal length and image size).
+    frames, registered_frames : frames of the tracks and how many got a pose; ``unregistered``
+        lists the others (frame numbers).
+    points : tracks read; ``reconstructed``, ``too_few_views``, ``degenerate`` count them by status.
+    observations, inliers : measured positions in the frames, and those used in the final estimate.
+    pixel_std_px : σ of the image noise from the inlier residuals (degrees of freedom counted).
+    reprojection_rms_px : RMS length of the 2-D reprojection errors over the inliers.
+    degrees_of_freedom : 2 × inliers - 6 × cameras - 3 × points + 7.
+    initial_pair : the two frames the reconstruction started from.
+    outlier_threshold_px, outlier_probability : the outlier test.
+    median_point_std : median over points of √(tr Σ / 3), world units (initial baseline = 1).
+    median_centre_std : median over registered cameras of the centre's √(tr Σ_C / 3).
+    covariance_gauge : how the covariances are to be read.
+    camera_choice : with ``--camera auto``, why the perspective model was kept (else None).
+    """
+
+    method: str
+    intrinsics: str
+    frames: int
+    registered_frames: int
+    unregistered: tuple[int, ...]
+    points: int
+    reconstructed: int
+    too_few_views: int
+    degenerate: int
+    observations: int
+    inliers: int
+    pixel_std_px: float
+    reprojection_rms_px: float
+    degrees_of_freedom: int
+    initial_pair: tuple[int, int]
+    outlier_threshold_px: float
+    outlier_probability: float
+    median_point_std: float | None
+    median_centre_std: float | None
+    covariance_gauge: str
+    camera_choice: str | None = None
+
+
+@dataclass(frozen=True)
 class Similarity:
     """``target ≈ scale * rotation @ source + translation``; ``rotation`` may be a reflection (det -1)."""
 
@@ -226,6 +273,7 @@ class RunSummary:
     tracking : tracking statistics.
     structure : the factorization's figures.
     fusion : structure fusion with known cameras (``fuse``).
+    perspective : calibrated reconstruction with unknown motion (``reconstruct --camera perspective``).
     structure_error : why there is no structure when factorization was attempted and failed.
     truth : the comparison with ground truth, when there is one.
     scene : the parameters of a rendered built-in scene.
@@ -245,6 +293,7 @@ class RunSummary:
     tracking: TrackingMetrics | None = None
     structure: StructureMetrics | None = None
     fusion: FusionMetrics | None = None
+    perspective: PerspectiveMetrics | None = None
     structure_error: str | None = None
     truth: TruthComparison | None = None
     scene: Any = None
