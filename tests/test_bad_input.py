@@ -93,6 +93,16 @@ CASES = [
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations 0", "--max-iterations must be >= 1"),
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations -5", "--max-iterations must be >= 1"),
     ("reconstruct", "{d}/tracks_ok.csv --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective", "needs its intrinsics"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --focal 500", "--focal needs the image size"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --intrinsics {d}/K_singular.csv",
+     "K_singular.csv: line 2: fx and fy must be > 0"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --intrinsics {d}/K_two_frames.csv",
+     "K_two_frames.csv: no intrinsics for frame 2"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --focal 500 --image-size 100 100",
+     "no two frames share >= 24 tracks"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --focal 500", "describe a perspective camera"),
+    ("demo", "--out {out} --camera perspective --focal 500", "needs your own sequence"),
     # --- report (its output folder is the run folder itself) ----------------------------------
     ("report", "{d}/missing", "missing does not exist or is not a folder"),
     ("report", "{d}/empty", "empty/summary.json: not found"),
@@ -185,6 +195,8 @@ def bad_inputs(tmp_path_factory) -> Path:
     rng = np.random.default_rng(0)
     ok_rows = [f"{f},{p},{x:.3f},{y:.3f}" for f in range(4) for p in range(6) for x, y in [rng.uniform(0, 100, 2)]]
     (d / "tracks_ok.csv").write_text("frame,track_id,x,y\n" + "\n".join(ok_rows) + "\n")
+    (d / "K_singular.csv").write_text("frame,fx,fy,cx,cy,skew\n0,500,0,50,50,0\n")
+    (d / "K_two_frames.csv").write_text("frame,fx,fy,cx,cy,skew\n0,500,500,50,50,0\n1,500,500,50,50,0\n")
     (d / "tracks_no_y.csv").write_text("frame,track_id,x\n0,1,2\n")
     (d / "tracks_nan.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,2,nan\n")
     (d / "tracks_inf.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,inf,3\n")
