@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/real_data_perspective.py                  # Oxford house and Merton I, ours vs pycolmap
-    python benchmarks/real_data_perspective.py --synthetic 20   # + NEES over 20 seeded walk-arounds
+    python benchmarks/real_data_perspective.py --synthetic 20   # + NEES over 20 seeded walk-arounds (2 layouts)
     python benchmarks/real_data_perspective.py --no-colmap
 
 Oxford VGG data (``../shared/data/oxford_model_house``, ``oxford_merton1``): the tracks and the
@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
+from kalmansfm.errors import NotEnoughDataError
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.alignment import align_similarity
 from kalmansfm.structure.perspective import reconstruct_perspective
@@ -143,13 +144,19 @@ def real_data(colmap: bool) -> None:
                   f"{s['centres']:10.3f} {'':>10s} {'':>9s} {elapsed:7.2f}")
 
 
-def synthetic(runs: int) -> None:
-    print(f"\n== synthetic walk-around, {runs} seeds (10 frames, 400 points, 0.7 px, 3 % outliers)")
+def synthetic(runs: int, frames: int = 10, arc: float = 40.0) -> None:
+    print(f"\n== synthetic walk-around, {runs} seeds ({frames} frames on a {arc:g}° arc, 400 points, 0.7 px, "
+          f"3 % outliers)")
     for method in ("batch", "recursive"):
-        nees, cam_nees, centre, reconstructed, median = [], [], [], [], []
+        nees, cam_nees, centre, reconstructed, median, refused = [], [], [], [], [], 0
         for seed in range(runs):
-            s = perspective_scene(frames=10, points=400, pixel_std=0.7, outlier_fraction=0.03, seed=seed)
-            rec = reconstruct_perspective(s.observations, s.intrinsics, method=method)
+            s = perspective_scene(frames=frames, points=400, pixel_std=0.7, outlier_fraction=0.03, arc_degrees=arc,
+                                  seed=seed)
+            try:
+                rec = reconstruct_perspective(s.observations, s.intrinsics, method=method)
+            except NotEnoughDataError:
+                refused += 1
+                continue
             ok, reg = rec.reconstructed, rec.registered
             al = align_similarity(rec.points[ok], s.points[ok])
             e = al.aligned - s.points[ok]
@@ -170,7 +177,8 @@ def synthetic(runs: int) -> None:
         line = (f"  {method:9s}: point NEES mean {n.mean():.2f} (median {np.median(n):.2f}, χ²₃ median 2.37), "
                 f"within the 99 % bound {100 * np.mean(n < chi2.ppf(0.99, 3)):.1f} %; median point error "
                 f"{np.median(median):.4f} (object radius 1.7); worst camera centre {max(centre):.3f} % of the "
-                f"viewing distance; points reconstructed {100 * min(reconstructed):.1f}-{100 * max(reconstructed):.1f} %")
+                f"viewing distance; points reconstructed {100 * min(reconstructed):.1f}-{100 * max(reconstructed):.1f} %"
+                f"; refused (no parallax) {refused} of {runs}")
         if cam_nees:
             line += f"; camera NEES (6 dof) mean {np.concatenate(cam_nees).mean():.2f}"
         print(line)
@@ -185,6 +193,7 @@ def main() -> None:
     real_data(colmap=not args.no_colmap)
     if args.synthetic:
         synthetic(args.synthetic)
+        synthetic(args.synthetic, frames=6, arc=60.0)  # 12° between frames: the recursive method's own ground
 
 
 if __name__ == "__main__":

@@ -233,3 +233,16 @@ def residual_rms_per_point(observations: np.ndarray, intrinsics: np.ndarray, rot
     count = np.bincount(tracks, minlength=points.shape[0])
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.sqrt(np.bincount(tracks, weights=sq, minlength=points.shape[0]) / count)
+
+
+def frame_runs(frames: np.ndarray) -> str:
+    """Frame numbers as runs, e.g. ``0-4, 7, 9-12``.
+
+    Examples
+    --------
+    >>> frame_runs(np.array([0, 1, 2, 4, 6, 7]))
+    '0-2, 4, 6-7'
+    """
+    frames = np.asarray(frames)
+    runs = np.split(frames, np.flatnonzero(np.diff(frames) > 1) + 1)
+    return ", ".join(f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs if len(r))

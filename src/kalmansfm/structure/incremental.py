@@ -18,6 +18,7 @@ from .calibrated import (
     PerspectiveReconstruction,
     PerspectiveSettings,
     ReconstructedPointStatus,
+    frame_runs,
     residual_rms_per_point,
 )
 from .pinhole import CameraSet, PointStatus, triangulate_points
@@ -373,9 +374,8 @@ class _Incremental:
     def _warn(self) -> None:
         missing = np.flatnonzero(~self.registered)
         if missing.size:
-            runs = np.split(missing, np.flatnonzero(np.diff(missing) > 1) + 1)
-            shown = ", ".join(f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs)
-            self.warnings.append(f"{missing.size} of {self.F} frames could not be registered (frames {shown}): "
+            self.warnings.append(f"{missing.size} of {self.F} frames could not be registered (frames "
+                                 f"{frame_runs(missing)}): "
                                  "they share too few consistent tracks with the reconstruction and have no pose")
         done = int(self.has_point.sum())
         if done < 0.5 * self.P:

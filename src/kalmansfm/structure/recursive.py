@@ -58,6 +58,7 @@ from .calibrated import (
     PerspectiveReconstruction,
     PerspectiveSettings,
     ReconstructedPointStatus,
+    frame_runs,
     residual_rms_per_point,
 )
 from .incremental import relative_pose
@@ -194,16 +195,20 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     homogeneous = np.concatenate([np.nan_to_num(obs), np.ones((F, P, 1))], axis=2)
     xn = np.einsum("fij,fpj->fpi", np.linalg.inv(K), homogeneous)
     normalised = xn[..., :2] / xn[..., 2:3]
-    motions: list[_Motion | None] = []
-    for k in range(1, F):  # one relative orientation per frame pair (not per point)
-        motions.append(_relative_orientation(obs, K, normalised, k - 1, k, settings))
-        if motions[-1] is None:
-            break
-    if motions[0] is None:
-        raise NotEnoughDataError("the first two frames give no relative orientation: too few shared tracks, "
+    # the chain starts at the first consecutive pair with a relative orientation and runs until one fails;
+    # one relative orientation per frame pair (not per point)
+    first = next((k for k in range(1, F) if (m := _relative_orientation(obs, K, normalised, k - 1, k, settings))
+                  is not None), None)
+    if first is None:
+        raise NotEnoughDataError("no two consecutive frames give a relative orientation: too few shared tracks, "
                                  "or no parallax between them (the recursive method needs parallax between "
                                  "consecutive frames; try method='batch')")
-    valid = [m for m in motions if m is not None]
+    motions: dict[int, _Motion | None] = {first: m}
+    for k in range(first + 1, F):
+        motions[k] = _relative_orientation(obs, K, normalised, k - 1, k, settings)
+        if motions[k] is None:
+            break
+    valid = [m for m in motions.values() if m is not None]
     sigma = float(np.sqrt(sum(m.squares for m in valid) / sum(m.dof for m in valid)))
     gate = settings.chi2_bound
     kz = np.concatenate([K, np.zeros((F, 3, 1))], axis=2)
@@ -211,19 +216,20 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     cov = np.full((P, 3, 3), np.nan)
     alive = np.zeros(P, bool)
     used = np.zeros((F, P), bool)
-    # chained poses in frame 0: x_cam_k = R_k (X - C_k); covariance of (δω, δC) with frame 0 and s_1 fixed
+    # chained poses in the chain's first frame: x_cam_k = R_k (X - C_k); covariance of (δω, δC) with that frame
+    # and the first baseline fixed
     R_chain = np.full((F, 3, 3), np.nan)
     C_chain = np.full((F, 3), np.nan)
     cam_cov = np.full((F, 6, 6), np.nan)
-    R_chain[0], C_chain[0], cam_cov[0] = np.eye(3), 0.0, 0.0
+    R_chain[first - 1], C_chain[first - 1], cam_cov[first - 1] = np.eye(3), 0.0, 0.0
     frame_status = np.full(F, FrameStatus.NOT_CONNECTED, dtype=np.int8)
-    frame_status[0] = FrameStatus.REGISTERED
+    frame_status[first - 1] = FrameStatus.REGISTERED
     warnings: list[str] = []
-    for k, motion in enumerate(motions, start=1):
+    for k, motion in motions.items():
         if motion is None:
             frame_status[k] = FrameStatus.POSE_FAILED
             break
-        if k == 1:
+        if k == first:
             s, motion_cov = 1.0, np.zeros((7, 7))
             motion_cov[:6, :6] = sigma**2 * motion.covariance
         else:
@@ -304,10 +310,13 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     dof = 2 * len(o) - 6 * len(frames) - 3 * len(tracks) + 7
     missing = np.flatnonzero(~registered)
     if missing.size:
-        warnings.append(f"{missing.size} of {F} frames could not be registered (frames {missing[0]}-{missing[-1]}): "
-                        "the chain of relative orientations stopped; they have no pose")
+        warnings.append(f"{missing.size} of {F} frames could not be registered (frames {frame_runs(missing)}): "
+                        "the chain of relative orientations does not reach them; they have no pose")
+    warnings.append("the recursive method fuses each point on its own and ignores how the shared motion estimates "
+                    "correlate the points: its covariances are over-confident, the more so the closer consecutive "
+                    "frames are (docs/perspective.md); method 'batch' gives calibrated covariances")
     t = -np.einsum("fij,fj->fi", R_chain, C_chain)
     point_rms = residual_rms_per_point(obs, K, R_chain, t, points, inliers)
     return PerspectiveReconstruction("recursive", points, point_cov, status, inliers.sum(axis=0), R_chain, t,
-                                     cam_cov, frame_status, inliers, point_rms, sigma, rms, int(dof), (0, 1),
+                                     cam_cov, frame_status, inliers, point_rms, sigma, rms, int(dof), (first - 1, first),
                                      tuple(warnings))
