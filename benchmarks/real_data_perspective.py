@@ -37,9 +37,9 @@ from scipy.stats import chi2
 from kalmansfm.errors import NotEnoughDataError
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.alignment import align_similarity
+from kalmansfm.structure.bundle import compare_in_gauge
 from kalmansfm.structure.perspective import reconstruct_perspective
 from kalmansfm.structure.pinhole import decompose_projection
-from kalmansfm.structure.rotation import rotation_log
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"
@@ -158,21 +158,18 @@ def synthetic(runs: int, frames: int = 10, arc: float = 40.0) -> None:
                 refused += 1
                 continue
             ok, reg = rec.reconstructed, rec.registered
-            al = align_similarity(rec.points[ok], s.points[ok])
-            e = al.aligned - s.points[ok]
-            S = al.scale**2 * al.rotation @ rec.point_covariances[ok] @ al.rotation.T
-            nees.append(np.einsum("ni,nij,nj->n", e, np.linalg.inv(S), e))
-            moved = al.scale * rec.centres[reg] @ al.rotation.T + al.translation
-            centre.append(np.linalg.norm(moved - s.centres[reg], axis=1).max() / s.viewing_distance * 100)
+            # the recursive method's camera covariances are in the gauge of its first camera: centres only
+            out = compare_in_gauge(rec.points[ok], rec.point_covariances[ok], s.points[ok],
+                                   centres=rec.centres[reg], reference_centres=s.centres[reg],
+                                   **({} if method != "batch" else dict(
+                                       rotations=rec.rotations[reg], camera_covariances=rec.camera_covariances[reg],
+                                       reference_rotations=s.rotations[reg])))
+            nees.append(out.point_nees)
+            centre.append(np.linalg.norm(out.centre_errors, axis=1).max() / s.viewing_distance * 100)
             reconstructed.append(ok.mean())
-            median.append(np.median(np.linalg.norm(e, axis=1)))
+            median.append(np.median(np.linalg.norm(out.point_errors, axis=1)))
             if method == "batch":
-                e_rot = rotation_log(rec.rotations[reg] @ al.rotation.T @ np.swapaxes(s.rotations[reg], 1, 2))
-                turn = np.eye(6)
-                turn[3:, 3:] = al.scale * al.rotation
-                Sc = turn @ rec.camera_covariances[reg] @ turn.T
-                v = np.concatenate([e_rot, moved - s.centres[reg]], axis=1)
-                cam_nees.append(np.einsum("ni,nij,nj->n", v, np.linalg.inv(Sc), v))
+                cam_nees.append(out.camera_nees)
         n = np.concatenate(nees)
         line = (f"  {method:9s}: point NEES mean {n.mean():.2f} (median {np.median(n):.2f}, χ²₃ median 2.37), "
                 f"within the 99 % bound {100 * np.mean(n < chi2.ppf(0.99, 3)):.1f} %; median point error "

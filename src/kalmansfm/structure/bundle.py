@@ -55,15 +55,18 @@ from threadpoolctl import threadpool_limits
 
 from ..errors import InvalidInputError
 from .._validation import as_float_array, check_positive
+from .alignment import Alignment, align_similarity
 from .pinhole import project_each
-from .rotation import cross_matrix, rotation_exp
+from .rotation import cross_matrix, rotation_exp, rotation_log
 
 __all__ = [
     "BUNDLE_LOSSES",
     "BundleResult",
+    "GaugeComparison",
     "GaugeCovariances",
     "ObservationList",
     "bundle_adjust",
+    "compare_in_gauge",
     "free_network_covariances",
     "reduced_camera_matrix",
     "reprojection_residuals",
@@ -612,3 +615,68 @@ def free_network_covariances(rotations: object, centres: object, points: object,
     camera_blocks = cam_cov.reshape(n, 6, n, 6)[index, :, index, :]
     sym = lambda a: 0.5 * (a + np.swapaxes(a, -1, -2))  # noqa: E731
     return GaugeCovariances(sym(sigma**2 * free_points), sym(sigma**2 * camera_blocks), gauge_residual)
+
+
+@dataclass(frozen=True)
+class GaugeComparison:
+    """A reconstruction compared with a reference in the free-network gauge.
+
+    Attributes
+    ----------
+    alignment : the least-squares similarity taking the reconstructed points onto the reference.
+    point_errors : (m, 3) aligned point minus reference point.
+    point_nees : (m,) eᵀ Σ⁻¹ e with Σ the point covariance moved by the alignment (s² R Σ Rᵀ);
+        χ² with 3 degrees of freedom when the covariances are right.
+    centre_errors : (n, 3) aligned camera centre minus reference centre (None without cameras).
+    camera_nees : (n,) the same for (δω, δC) of each camera, 6 degrees of freedom (None without cameras).
+    """
+
+    alignment: Alignment
+    point_errors: np.ndarray
+    point_nees: np.ndarray
+    centre_errors: np.ndarray | None = None
+    camera_nees: np.ndarray | None = None
+
+
+def compare_in_gauge(points: np.ndarray, point_covariances: np.ndarray, reference: np.ndarray, *,
+                     rotations: np.ndarray | None = None, centres: np.ndarray | None = None,
+                     camera_covariances: np.ndarray | None = None, reference_rotations: np.ndarray | None = None,
+                     reference_centres: np.ndarray | None = None, allow_reflection: bool = False) -> GaugeComparison:
+    """Align a reconstruction onto a reference (all points, equal weights) and judge its errors by its covariances.
+
+    This is the comparison the free-network gauge is made for (:func:`free_network_covariances`).
+
+    Parameters
+    ----------
+    points, point_covariances : (m, 3) and (m, 3, 3), the reconstruction's.
+    reference : (m, 3) the same points in the reference frame.
+    rotations, centres, camera_covariances : optional (n, 3, 3), (n, 3), (n, 6, 6) cameras with covariances of
+        (δω, δC), R_true = exp([δω]×) R; centres alone give the centre errors.
+    reference_rotations, reference_centres : the reference cameras.
+    allow_reflection : the reference may be a mirror image (its NEES is then meaningless for the cameras).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> truth = rng.normal(size=(200, 3))
+    >>> cov = np.broadcast_to(0.01 * np.eye(3), (200, 3, 3))
+    >>> estimate = 2.0 * (truth + rng.normal(scale=0.1, size=truth.shape)) + 5.0  # another scale and origin
+    >>> out = compare_in_gauge(estimate, 4.0 * cov, truth)
+    >>> bool(2.5 < out.point_nees.mean() < 3.5)
+    True
+    """
+    al = align_similarity(points, reference, allow_reflection=allow_reflection)
+    errors = al.aligned - reference
+    S = al.scale**2 * al.rotation @ point_covariances @ al.rotation.T
+    nees = np.einsum("ni,nij,nj->n", errors, np.linalg.inv(S), errors)
+    if centres is None or reference_centres is None:
+        return GaugeComparison(al, errors, nees)
+    centre_errors = al.scale * centres @ al.rotation.T + al.translation - reference_centres
+    if rotations is None or camera_covariances is None or reference_rotations is None:
+        return GaugeComparison(al, errors, nees, centre_errors)
+    turn = np.eye(6)
+    turn[3:, 3:] = al.scale * al.rotation
+    Sc = turn @ camera_covariances @ turn.T
+    rotation_errors = rotation_log(rotations @ al.rotation.T @ np.swapaxes(reference_rotations, 1, 2))
+    v = np.concatenate([rotation_errors, centre_errors], axis=1)
+    return GaugeComparison(al, errors, nees, centre_errors, np.einsum("ni,nij,nj->n", v, np.linalg.inv(Sc), v))

@@ -16,6 +16,7 @@ from kalmansfm.structure.bundle import (
     _residuals,
     _similarity_directions,
     bundle_adjust,
+    compare_in_gauge,
     free_network_covariances,
     reprojection_residuals,
 )
@@ -168,17 +169,11 @@ def test_point_and_camera_nees_after_similarity_alignment():
         dof = 2 * len(obs) - 6 * len(K) - 3 * len(s.points) + 7
         sigma = np.sqrt(np.sum(r**2) / dof)
         cov = free_network_covariances(fit.rotations, fit.centres, fit.points, obs, K, sigma)
-        al = align_similarity(fit.points, s.points)
-        e = al.aligned - s.points
-        S = al.scale**2 * al.rotation @ cov.points @ al.rotation.T
-        point_nees.append(np.einsum("ni,nij,nj->n", e, np.linalg.inv(S), e))
-        e_centre = al.scale * fit.centres @ al.rotation.T + al.translation - s.centres
-        e_rot = rotation_log(fit.rotations @ al.rotation.T @ np.swapaxes(s.rotations, 1, 2))
-        turn = np.eye(6)
-        turn[3:, 3:] = al.scale * al.rotation
-        Sc = turn @ cov.cameras @ turn.T
-        v = np.concatenate([e_rot, e_centre], axis=1)
-        camera_nees.append(np.einsum("ni,nij,nj->n", v, np.linalg.inv(Sc), v))
+        out = compare_in_gauge(fit.points, cov.points, s.points, rotations=fit.rotations, centres=fit.centres,
+                               camera_covariances=cov.cameras, reference_rotations=s.rotations,
+                               reference_centres=s.centres)
+        point_nees.append(out.point_nees)
+        camera_nees.append(out.camera_nees)
     p, c = np.concatenate(point_nees), np.concatenate(camera_nees)
     assert 2.7 < p.mean() < 3.3
     assert np.mean(p < chi2.ppf(0.99, 3)) > 0.98

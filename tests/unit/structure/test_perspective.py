@@ -6,24 +6,26 @@ from scipy.stats import chi2
 
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.perspective import perspective_scene
-from kalmansfm.structure.alignment import align_similarity
+from kalmansfm.structure.bundle import compare_in_gauge
 from kalmansfm.structure.perspective import (
     FrameStatus,
     PerspectiveSettings,
     ReconstructedPointStatus,
     reconstruct_perspective,
 )
-from kalmansfm.structure.rotation import rotation_log
 
 
 def aligned_errors(rec, scene):
-    """Point errors and NEES after the similarity alignment the free-network gauge refers to."""
-    ok = rec.reconstructed
-    al = align_similarity(rec.points[ok], scene.points[ok])
-    e = al.aligned - scene.points[ok]
-    S = al.scale**2 * al.rotation @ rec.point_covariances[ok] @ al.rotation.T
-    nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(S), e)
-    return al, e, nees
+    """The comparison in the free-network gauge: points (reconstructed ones) and, for the batch method whose
+    camera covariances are in that gauge, cameras (registered ones)."""
+    ok, reg = rec.reconstructed, rec.registered
+    if rec.method != "batch":
+        return compare_in_gauge(rec.points[ok], rec.point_covariances[ok], scene.points[ok],
+                                centres=rec.centres[reg], reference_centres=scene.centres[reg])
+    return compare_in_gauge(rec.points[ok], rec.point_covariances[ok], scene.points[ok],
+                            rotations=rec.rotations[reg], centres=rec.centres[reg],
+                            camera_covariances=rec.camera_covariances[reg], reference_rotations=scene.rotations[reg],
+                            reference_centres=scene.centres[reg])
 
 
 @pytest.fixture(scope="module")
@@ -41,8 +43,9 @@ def test_points_are_accurate_and_their_gauge_covariances_consistent(walkarounds)
     for scene, rec in walkarounds:
         assert rec.registered.all()
         reconstructed.append(rec.reconstructed.mean())
-        _, e, n = aligned_errors(rec, scene)
-        nees.append(n)
+        out = aligned_errors(rec, scene)
+        e = out.point_errors
+        nees.append(out.point_nees)
         # the pixel noise is recovered from the residuals (degrees of freedom counted)
         assert rec.pixel_std == pytest.approx(scene.pixel_std, rel=0.06)
         assert np.median(np.linalg.norm(e, axis=1)) < 0.01  # object radius ~1.7
@@ -55,17 +58,10 @@ def test_points_are_accurate_and_their_gauge_covariances_consistent(walkarounds)
 def test_camera_centres_within_half_a_percent_of_the_viewing_distance(walkarounds):
     nees = []
     for scene, rec in walkarounds:
-        al, _, _ = aligned_errors(rec, scene)
-        centres = al.scale * rec.centres @ al.rotation.T + al.translation
-        error = centres - scene.centres
-        assert np.linalg.norm(error, axis=1).max() < 0.005 * scene.viewing_distance
+        out = aligned_errors(rec, scene)
+        assert np.linalg.norm(out.centre_errors, axis=1).max() < 0.005 * scene.viewing_distance
         # and the camera covariances (same gauge) describe those errors
-        e_rot = rotation_log(rec.rotations @ al.rotation.T @ np.swapaxes(scene.rotations, 1, 2))
-        turn = np.eye(6)
-        turn[3:, 3:] = al.scale * al.rotation
-        S = turn @ rec.camera_covariances @ turn.T
-        v = np.concatenate([e_rot, error], axis=1)
-        nees.append(np.einsum("ni,nij,nj->n", v, np.linalg.inv(S), v))
+        nees.append(out.camera_nees)
     assert 3.5 < np.concatenate(nees).mean() < 8.0  # 6 degrees of freedom
 
 
@@ -142,10 +138,10 @@ def test_recursive_method_follows_batch_on_wide_steps():
         for method in errors:
             rec = reconstruct_perspective(s.observations, s.intrinsics, method=method)
             assert rec.method == method and rec.registered.all()
-            _, e, n = aligned_errors(rec, s)
-            errors[method].append(np.median(np.linalg.norm(e, axis=1)))
+            out = aligned_errors(rec, s)
+            errors[method].append(np.median(np.linalg.norm(out.point_errors, axis=1)))
             if method == "recursive":
-                nees.append(n)
+                nees.append(out.point_nees)
     assert np.median(errors["recursive"]) < 4 * np.median(errors["batch"])
     # per-point filtering ignores the correlation through the shared motion: over-confident (docs/perspective.md)
     n = np.concatenate(nees)
