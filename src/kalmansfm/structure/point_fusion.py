@@ -116,6 +116,8 @@ _MAX_CONDITION = 1e14
 # Auto σ: stop re-estimating when it changes by less than this fraction; at most this many passes.
 _SIGMA_TOLERANCE = 5e-3
 _MAX_SIGMA_PASSES = 8
+# States converted from inverse depth to (X, Y, Z) together (bounds the temporaries).
+_CONVERSION_BLOCK = 16_384
 # Points used to decide the scene orientation (the sign of the depths most points agree on).
 _ORIENTATION_SAMPLE = 2_000
 
@@ -455,7 +457,7 @@ class _ChunkResult:
     status: np.ndarray
     used: np.ndarray  # (V, n) bool accepted observations
     rejected: np.ndarray  # (V, n) bool
-    residuals: np.ndarray  # (V, n, 2) observed - projected, NaN where unseen or no estimate
+    residuals: np.ndarray  # (V, n) length of observed - projected, NaN where unseen or no estimate
     history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None  # views, local points, X, cov (unit σ)
     anchors: np.ndarray | None = None  # (n,) for states in inverse depth: points/covariances hold θ and its P
 
@@ -690,8 +692,8 @@ def _finish(X, C, status, used, rejected, residuals, history, anchors=None) -> _
     ok = status == PointStatus.OK
     X = np.where(ok[:, None], X, np.nan)
     C = np.where(ok[:, None, None], C, np.nan)
-    residuals = np.where(ok[None, :, None], residuals, np.nan)
-    return _ChunkResult(X, C, status, used & ok, rejected, residuals, history, anchors)
+    lengths = np.where(ok[None, :], np.linalg.norm(residuals, axis=2), np.nan)
+    return _ChunkResult(X, C, status, used & ok, rejected, lengths, history, anchors)
 
 
 def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -966,7 +968,7 @@ def _sum_squares(results: Iterable[_ChunkResult]) -> tuple[float, int, int]:
     for res in results:
         ok = res.status == PointStatus.OK
         u = res.used & ok[None]
-        total += float(np.sum(np.where(u[..., None], res.residuals, 0.0) ** 2))
+        total += float(np.sum(np.where(u, res.residuals, 0.0) ** 2))
         n_obs += int(u.sum())
         n_pts += int(ok.sum())
     return total, n_obs, n_pts
@@ -1078,8 +1080,8 @@ def fuse_with_settings(observations: object, cameras: CameraSet | object, settin
         # Pilot without gates: a robust σ from the median squared residual, |r|² / σ² ≈ χ²(2) (median 2 ln 2),
         # with the degrees of freedom counted.
         results = run(1.0, np.inf, np.inf, False)
-        sq = np.concatenate([np.sum(np.where((r.used & (r.status == PointStatus.OK)[None])[..., None],
-                                             r.residuals, np.nan) ** 2, axis=2).ravel() for r in results])
+        sq = np.concatenate([np.where(r.used & (r.status == PointStatus.OK)[None], r.residuals, np.nan).ravel() ** 2
+                             for r in results])
         sq = sq[np.isfinite(sq)]
         total, n_obs, n_pts = _sum_squares(results)
         dof = 2 * n_obs - 3 * n_pts
@@ -1124,10 +1126,43 @@ def _next_sigma(sigma: float, estimate: float, previous: tuple[float, float] | N
 
 def _to_points(g: _Geometry, anchors: np.ndarray | None, x: np.ndarray, cov: np.ndarray, sigma: float
                ) -> tuple[np.ndarray, np.ndarray]:
-    """(X, Y, Z) and covariance at pixel noise σ from a chunk's unit-σ states (inverse depth when anchored)."""
+    """(X, Y, Z) and covariance at pixel noise σ from a chunk's unit-σ states (inverse depth when anchored).
+
+    Converted in blocks, so the temporaries of the second-order term stay small.
+    """
     if anchors is None:
         return x, cov * sigma**2
-    return _theta_to_point(g, np.maximum(anchors, 0), x, cov * sigma**2)
+    X, C = np.empty_like(x), np.empty_like(cov)
+    for start in range(0, x.shape[0], _CONVERSION_BLOCK):
+        b = slice(start, start + _CONVERSION_BLOCK)
+        X[b], C[b] = _theta_to_point(g, np.maximum(anchors[b], 0), x[b], cov[b] * sigma**2)
+    return X, C
+
+
+def _assemble_history(g: _Geometry, results: list[_ChunkResult], slices: list[slice], sigma: float) -> FusionHistory:
+    """The chunks' histories in one :class:`FusionHistory`, sorted by view then point.
+
+    Every entry is written once, straight to its sorted place (no second copy of the history).
+    """
+    sizes = [r.history[0].size for r in results]
+    starts = np.cumsum([0, *sizes])
+    views = np.concatenate([r.history[0] for r in results]).astype(np.int64)
+    points = np.concatenate([r.history[1] + chunk.start for r, chunk in zip(results, slices)]).astype(np.int64)
+    order = np.lexsort((points, views))
+    place = np.empty_like(order)
+    place[order] = np.arange(order.size)
+    H = order.size
+    hx, hc = np.empty((H, 3)), np.empty((H, 3, 3))
+    states = results[0].anchors is not None
+    hs, hsc, ha = (np.empty((H, 3)), np.empty((H, 3, 3)), np.empty(H, np.int64)) if states else (None, None, None)
+    for r, begin, end in zip(results, starts[:-1], starts[1:]):
+        _, local, x, cov = r.history
+        where = place[begin:end]
+        anchors = None if r.anchors is None else r.anchors[local]
+        hx[where], hc[where] = _to_points(g, anchors, x, cov, sigma)
+        if states:
+            hs[where], hsc[where], ha[where] = x, cov * sigma**2, anchors
+    return FusionHistory(views[order], points[order], hx, hc, hs, hsc, ha)
 
 
 def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult], slices: list[slice], V: int,
@@ -1138,8 +1173,7 @@ def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult
     status = np.concatenate([r.status for r in results])
     used = np.concatenate([r.used for r in results], axis=1)
     rejected = np.concatenate([r.rejected for r in results], axis=1)
-    res = np.concatenate([r.residuals for r in results], axis=1)
-    lengths = np.linalg.norm(res, axis=2)
+    lengths = np.concatenate([r.residuals for r in results], axis=1)
     ok = status == PointStatus.OK
     views = used.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -1148,18 +1182,6 @@ def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult
     dof = int(2 * used[:, ok].sum() - 3 * ok.sum())
     hist = None
     if settings.history:
-        parts = [(r.history, s.start) for r, s in zip(results, slices)]
-        hv = np.concatenate([h[0] for h, _ in parts]).astype(np.int64)
-        hp = np.concatenate([h[1] + start for h, start in parts]).astype(np.int64)
-        converted = [_to_points(g, None if r.anchors is None else r.anchors[r.history[1]], r.history[2],
-                                r.history[3], sigma) for r in results]
-        hx = np.concatenate([x for x, _ in converted])
-        hc = np.concatenate([c for _, c in converted])
-        extra: tuple = (None, None, None)
-        if results[0].anchors is not None:
-            extra = (np.concatenate([r.history[2] for r in results]),
-                     np.concatenate([r.history[3] for r in results]) * sigma**2,
-                     np.concatenate([r.anchors[r.history[1]] for r in results]))
-        hist = FusionHistory(hv, hp, hx, hc, *extra)._take(np.lexsort((hp, hv)))
+        hist = _assemble_history(g, results, slices, sigma)
     return FusedStructure(settings.method, points, cov, status, views, rms, lengths, rejected, float(sigma),
                           estimated, dof, g.orientation, passes, hist)
