@@ -33,6 +33,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUM
 import platform  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
+import warnings  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -118,6 +119,7 @@ def dask_scaling(points: int, chunks: list[int]) -> None:
     print("| where | chunk (points) | seconds | speed-up vs in-process |")
     print("|---|---|---|---|")
     print(f"| in this process | {reference_chunk(points)} | {t:.2f} | 1 |")
+    warnings.filterwarnings("ignore", message="Sending large graph")  # the chunks travel with their tasks
     for workers in (1, 2):
         with dask_client(None, workers) as client:
             executor = client.get_executor()

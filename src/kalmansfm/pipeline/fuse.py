@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings as warnings_module
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -141,7 +142,9 @@ def run_fuse(
         if scheduler is None and n_workers is None:
             fused = fuse_with_settings(data.observations, data.cameras, settings)
         else:
-            with dask_client(scheduler, n_workers) as client:
+            with dask_client(scheduler, n_workers) as client, warnings_module.catch_warnings():
+                # each chunk travels with its task; Dask's advice to load the data on the workers does not apply
+                warnings_module.filterwarnings("ignore", message="Sending large graph")
                 fused = fuse_with_settings(data.observations, data.cameras, settings, executor=client.get_executor())
     summary = RunSummary(command="fuse", input=f"{tracks_path} with cameras {cameras_path}",
                          fusion=fusion_metrics(data, fused, settings), warnings=tuple(warnings))
