@@ -62,7 +62,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from concurrent.futures import Executor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
@@ -73,6 +73,8 @@ from ..estimation.kalman import kalman_update
 from .pinhole import (
     CameraSet,
     PointStatus,
+    _inverse3,
+    _solve3,
     decompose_projection,
     project_each,
     project_points,
@@ -263,7 +265,7 @@ class FusedStructure:
     degrees_of_freedom: int
     orientation: int
     passes: int
-    history: FusionHistory | None = field(default=None)
+    history: FusionHistory | None = None
 
     @property
     def fused(self) -> np.ndarray:
@@ -380,13 +382,13 @@ def _start_pairs(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        step = _solve_ridged(N[idx], g_[idx])
+        step = _solve3(N[idx], g_[idx])
         trial = theta[idx] + step
         Nt, gt, ct = normal_equations(trial, obs[:, idx])
         better = np.isfinite(ct) & (ct <= cost[idx])
         acc = idx[better]
         theta[acc], N[acc], g_[acc], cost[acc] = trial[better], Nt[better], gt[better], ct[better]
-        small = np.abs(step) <= _IEKF_TOLERANCE * np.sqrt(np.abs(np.diagonal(_inv_ridged(N[idx]), axis1=1, axis2=2)))
+        small = np.abs(step) <= _IEKF_TOLERANCE * np.sqrt(np.abs(np.diagonal(_inverse3(N[idx]), axis1=1, axis2=2)))
         active[idx] = better & ~small.all(axis=1)
     evals = np.linalg.eigvalsh(N)
     usable = np.isfinite(evals).all(axis=1) & (evals[:, 0] > evals[:, 2] / _MAX_CONDITION) & np.isfinite(theta).all(1)
@@ -395,23 +397,12 @@ def _start_pairs(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
     return theta, cov, cost, usable
 
 
-def _solve_ridged(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ridge = 1e-14 * np.trace(A, axis1=1, axis2=2) + np.finfo(float).tiny
-    return np.linalg.solve(A + ridge[:, None, None] * np.eye(3), b[..., None])[..., 0]
-
-
-def _inv_ridged(A: np.ndarray) -> np.ndarray:
-    ridge = 1e-14 * np.trace(A, axis1=1, axis2=2) + np.finfo(float).tiny
-    return np.linalg.inv(A + ridge[:, None, None] * np.eye(3))
-
-
 def _iterated_update(Q: np.ndarray, prior: np.ndarray, P: np.ndarray, z: np.ndarray, sigma: float, gate: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gated iterated EKF update of unit-σ states by one 2-D projection each.
 
-    Returns the posterior θ and covariance (the prior where rejected), the
-    normalised innovation squared νᵀ S⁻¹ ν at the prior (in units of σ²) and the
-    accepted mask.
+    Returns the posterior θ and covariance (the prior where rejected) and the accepted
+    mask: the normalised innovation νᵀ S⁻¹ ν at the prior, in units of σ², within ``gate``.
     """
     eye2 = np.eye(2)
     pix, _, H = project_each(Q, prior)
@@ -434,7 +425,7 @@ def _iterated_update(Q: np.ndarray, prior: np.ndarray, P: np.ndarray, z: np.ndar
             np.abs(np.diagonal(res.P, axis1=1, axis2=2)))
         theta[active], cov[active] = res.x, res.P
         active = active[moved.any(axis=1)]
-    return theta, cov, nis, accept
+    return theta, cov, accept
 
 
 @dataclass(frozen=True)
@@ -458,7 +449,8 @@ class _ChunkResult:
     used: np.ndarray  # (V, n) bool accepted observations
     rejected: np.ndarray  # (V, n) bool
     residuals: np.ndarray  # (V, n) length of observed - projected, NaN where unseen or no estimate
-    history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None  # views, local points, X, cov (unit σ)
+    # views, local points, states and their unit-σ covariances (θ for recursive, else X)
+    history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
     anchors: np.ndarray | None = None  # (n,) for states in inverse depth: points/covariances hold θ and its P
 
 
@@ -595,7 +587,7 @@ def _recursive_states_numpy(job: _Chunk) -> _States:
         # updates: gated iterated EKF, all points at once
         idx = np.flatnonzero(verified_now | provisional_now)
         if idx.size:
-            th, P, _, ok = _iterated_update(g.Q[first[idx], v], theta[idx], cov[idx], obs[v, idx],
+            th, P, ok = _iterated_update(g.Q[first[idx], v], theta[idx], cov[idx], obs[v, idx],
                                             job.sigma, job.gate2)
             acc = idx[ok]
             theta[acc], cov[acc] = th[ok], P[ok]
@@ -700,7 +692,7 @@ def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray
     """(V, n) rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r of each used observation (unit σ), NaN elsewhere."""
     J = projection_jacobians(P, X)
     J = np.where(mask[..., None, None], J, 0.0)
-    N_inv = _inv_ridged(np.einsum("vnai,vnaj->nij", J, J))
+    N_inv = _inverse3(np.einsum("vnai,vnaj->nij", J, J))
     hat = np.einsum("vnai,nij,vnbj->vnab", J, N_inv, J)
     A = np.eye(2) - hat
     det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
