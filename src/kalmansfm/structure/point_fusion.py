@@ -21,8 +21,9 @@ Methods
     is an iterated extended Kalman update on its 2-D projection (each iteration
     is :func:`~kalmansfm.estimation.kalman.kalman_update` with the model
     linearised at the current iterate).  All points seen in a view are updated
-    at once.  The estimate and covariance in (X, Y, Z) are the first-order image
-    of θ's.
+    at once (the NumPy reference); by default a numba kernel runs the same
+    transitions point by point.  The (X, Y, Z) estimate is θ̂'s image; its
+    covariance is the second-order image of θ's (:func:`_theta_to_point`).
 ``batch`` (the reference)
     Per point, maximum likelihood over all its views: linear triangulation, then
     Gauss–Newton in (X, Y, Z) (:func:`~.pinhole.refine_points`).
@@ -39,9 +40,12 @@ An observation is tested before it is used, with σ the pixel noise:
 
 * a further view (recursive): the innovation ν = z - h(θ̂) with S = H P Hᵀ + σ² I;
   νᵀ S⁻¹ ν beyond the χ²(2) quantile of ``outlier_probability`` → rejected;
-* the first pair of a point (recursive): its Gauss–Newton residual (1 degree of
-  freedom) beyond the χ²(1) quantile → the older observation is rejected and the
-  point starts again from the newer one;
+* the first pair of a point (recursive) is provisional until the next view passes
+  the gate; a pair whose Gauss–Newton residual (1 degree of freedom) fails the
+  χ²(1) quantile is kept as a conflict.  Three observations that do not agree are
+  resolved: the one whose removal leaves the most consistent pair (which must pass
+  χ²(1)) is rejected and the point continues from that pair; with no consistent
+  pair the oldest is rejected;
 * batch: the leave-one-out residual of every observation, rᵀ (σ² (I - J N⁻¹ Jᵀ))⁻¹ r,
   worst first, one per point per round, until all pass; a two-view point whose
   residual fails the χ²(1) test loses both observations.
