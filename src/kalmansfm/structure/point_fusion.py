@@ -114,7 +114,7 @@ DEFAULT_CHUNK_POINTS = 65_536
 # Iterated EKF: at most this many relinearisations; stop when no component moves more than
 # _IEKF_TOLERANCE of its own standard deviation.
 _IEKF_ITERATIONS = 10
-_IEKF_TOLERANCE = 1e-8
+_IEKF_TOLERANCE = 1e-6
 # Gauss–Newton iterations of the two-view start.
 _START_ITERATIONS = 20
 # A two-view (unit-σ) normal matrix more ill-conditioned than this carries no depth at all.
