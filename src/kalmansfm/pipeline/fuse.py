@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import os
-import warnings as warnings_module
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from ..io.summary import FusionMetrics, RunSummary
 from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
 from ..structure.point_fusion import FusedStructure, FusionSettings, fuse_with_settings
-from .cluster import check_workers, dask_client
+from .cluster import ScatteringExecutor, check_workers, dask_client
 from .stage import Stopwatch, stage_summary
 
 __all__ = ["FuseRun", "run_fuse"]
@@ -142,10 +141,9 @@ def run_fuse(
         if scheduler is None and n_workers is None:
             fused = fuse_with_settings(data.observations, data.cameras, settings)
         else:
-            with dask_client(scheduler, n_workers) as client, warnings_module.catch_warnings():
-                # each chunk travels with its task; Dask's advice to load the data on the workers does not apply
-                warnings_module.filterwarnings("ignore", message="Sending large graph")
-                fused = fuse_with_settings(data.observations, data.cameras, settings, executor=client.get_executor())
+            with dask_client(scheduler, n_workers) as client:
+                fused = fuse_with_settings(data.observations, data.cameras, settings,
+                                           executor=ScatteringExecutor(client))
     summary = RunSummary(command="fuse", input=f"{tracks_path} with cameras {cameras_path}",
                          fusion=fusion_metrics(data, fused, settings), warnings=tuple(warnings))
     frames, ids = data.cameras.frames, data.track_ids

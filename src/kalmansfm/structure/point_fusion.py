@@ -65,7 +65,7 @@ covariances are scaled by the final σ².
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from concurrent.futures import Executor
+from typing import Any
 from dataclasses import dataclass
 
 import numpy as np
@@ -980,7 +980,7 @@ def fuse(
     *,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
     orientation: int | None = None,
-    executor: Executor | None = None,
+    executor: Any | None = None,
 ) -> FusedStructure:
     """Fuse each point's observations over many views with known cameras into a 3-D point and its covariance.
 
@@ -1009,9 +1009,10 @@ def fuse(
     orientation : +1, -1 or None
         +1: points lie in front of the cameras (positive depth with P = λ K [R | t]);
         -1: a mirrored reconstruction; None: the sign most points agree on.
-    executor : concurrent.futures.Executor, optional
-        Runs the chunks (e.g. ``dask.distributed.Client.get_executor()``); by
-        default they run one after the other here.
+    executor : object with a ``map(fn, items)`` method, optional
+        Runs the chunks (a ``concurrent.futures.Executor``, or
+        :class:`kalmansfm.pipeline.cluster.ScatteringExecutor` on Dask); by default
+        they run one after the other here.
 
     Returns
     -------
@@ -1054,7 +1055,7 @@ def fuse(
 
 
 def fuse_with_settings(observations: object, cameras: CameraSet | object, settings: FusionSettings,
-                       executor: Executor | None = None) -> FusedStructure:
+                       executor: Any | None = None) -> FusedStructure:
     """:func:`fuse` with its options given as one :class:`FusionSettings`."""
     cams, obs = _validate(observations, cameras)
     orientation = _orientation(cams, obs) if settings.orientation is None else settings.orientation
