@@ -9,7 +9,6 @@ deviations, vanishes with the noise (it is O(σ / depth-scale)).
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
 
 from kalmansfm.structure.pinhole import CameraSet, project_points
 from kalmansfm.structure.point_fusion import fuse

@@ -17,7 +17,7 @@ from ..io.summary import FusionMetrics, RunSummary
 from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
 from ..structure.point_fusion import FusedStructure, FusionSettings, fuse_with_settings
-from .cluster import check_workers, dask_client
+from .cluster import ScatteringExecutor, check_workers, dask_client
 from .stage import Stopwatch, stage_summary
 
 __all__ = ["FuseRun", "run_fuse"]
@@ -142,7 +142,8 @@ def run_fuse(
             fused = fuse_with_settings(data.observations, data.cameras, settings)
         else:
             with dask_client(scheduler, n_workers) as client:
-                fused = fuse_with_settings(data.observations, data.cameras, settings, executor=client.get_executor())
+                fused = fuse_with_settings(data.observations, data.cameras, settings,
+                                           executor=ScatteringExecutor(client))
     summary = RunSummary(command="fuse", input=f"{tracks_path} with cameras {cameras_path}",
                          fusion=fusion_metrics(data, fused, settings), warnings=tuple(warnings))
     frames, ids = data.cameras.frames, data.track_ids

@@ -471,7 +471,11 @@ def scene_orientation(depths: object, visible: object | None = None) -> int:
     return -1 if negative > positive else 1
 
 
-def _visibility(observations: np.ndarray, visible: object | None, V: int) -> tuple[np.ndarray, np.ndarray]:
+def _cameras_and_observations(cameras: CameraSet | np.ndarray, observations: object, visible: object | None
+                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked (V, 3, 4) matrices, (V, N, 2) observations and the (V, N) mask of those used."""
+    P = cameras.matrices if isinstance(cameras, CameraSet) else CameraSet.from_matrices(cameras).matrices
+    V = P.shape[0]
     obs = as_float_array("observations", observations)
     if obs.ndim != 3 or obs.shape[0] != V or obs.shape[2] != 2:
         raise InvalidInputError(f"observations must have shape ({V} views, N points, 2) as (x, y); got {obs.shape}")
@@ -481,7 +485,7 @@ def _visibility(observations: np.ndarray, visible: object | None, V: int) -> tup
         if vis.shape != seen.shape:
             raise InvalidInputError(f"visible must have shape {seen.shape} like observations[..., 0]; got {vis.shape}")
         seen &= vis
-    return obs, seen
+    return P, obs, seen
 
 
 @dataclass(frozen=True)
@@ -553,12 +557,8 @@ def triangulate_points(cameras: CameraSet | np.ndarray, observations: object, vi
     >>> tri.points[0].round(9).tolist(), [PointStatus(s).label for s in tri.status]
     ([0.3, 0.1, 4.0], ['fused', 'too_few_views'])
     """
-    P = _matrices(cameras)
-    if not isinstance(cameras, CameraSet):
-        P = CameraSet.from_matrices(P).matrices
-    V = P.shape[0]
-    obs, seen = _visibility(observations, visible, V)
-    N = obs.shape[1]
+    P, obs, seen = _cameras_and_observations(cameras, observations, visible)
+    V, N = seen.shape
     Pw, K, world = _normalising_transforms(P)
     # normalised image points K⁻¹ (x, y, 1)
     xh = np.concatenate([np.where(seen[..., None], obs, 0.0), np.ones((V, N, 1))], axis=2)
@@ -633,10 +633,20 @@ def _normal_equations(P: np.ndarray, X: np.ndarray, obs: np.ndarray, seen: np.nd
     return r, JtJ, Jtr, cost, in_front
 
 
+def _ridge(A: np.ndarray) -> np.ndarray:
+    """A tiny ridge so that (nearly) singular 3 × 3 systems stay defined: A + ridge I."""
+    ridge = 1e-14 * np.trace(A, axis1=-2, axis2=-1) + np.finfo(float).tiny
+    return A + ridge[..., None, None] * np.eye(3)
+
+
 def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Batched 3 × 3 solves with a tiny ridge so that (nearly) singular systems stay defined."""
-    ridge = 1e-14 * np.trace(A, axis1=1, axis2=2) + np.finfo(float).tiny
-    return np.linalg.solve(A + ridge[:, None, None] * np.eye(3), b[..., None])[..., 0]
+    """Batched 3 × 3 solves A x = b with a tiny ridge."""
+    return np.linalg.solve(_ridge(A), b[..., None])[..., 0]
+
+
+def _inverse3(A: np.ndarray) -> np.ndarray:
+    """Batched 3 × 3 inverses with a tiny ridge."""
+    return np.linalg.inv(_ridge(A))
 
 
 def refine_points(cameras: CameraSet | np.ndarray, observations: object, initial: object,
@@ -677,12 +687,8 @@ def refine_points(cameras: CameraSet | np.ndarray, observations: object, initial
     >>> float(fit.reprojection_rms[0]) < 0.5
     True
     """
-    P = _matrices(cameras)
-    if not isinstance(cameras, CameraSet):
-        P = CameraSet.from_matrices(P).matrices
-    V = P.shape[0]
-    obs, seen = _visibility(observations, visible, V)
-    N = obs.shape[1]
+    P, obs, seen = _cameras_and_observations(cameras, observations, visible)
+    V, N = seen.shape
     X = as_float_array("initial", initial).copy()
     if X.shape != (N, 3):
         raise InvalidInputError(f"initial must have shape ({N}, 3), one point per observation column; got {X.shape}")

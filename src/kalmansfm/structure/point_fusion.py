@@ -21,8 +21,9 @@ Methods
     is an iterated extended Kalman update on its 2-D projection (each iteration
     is :func:`~kalmansfm.estimation.kalman.kalman_update` with the model
     linearised at the current iterate).  All points seen in a view are updated
-    at once.  The estimate and covariance in (X, Y, Z) are the first-order image
-    of θ's.
+    at once (the NumPy reference); by default a numba kernel runs the same
+    transitions point by point.  The (X, Y, Z) estimate is θ̂'s image; its
+    covariance is the second-order image of θ's (:func:`_theta_to_point`).
 ``batch`` (the reference)
     Per point, maximum likelihood over all its views: linear triangulation, then
     Gauss–Newton in (X, Y, Z) (:func:`~.pinhole.refine_points`).
@@ -39,9 +40,12 @@ An observation is tested before it is used, with σ the pixel noise:
 
 * a further view (recursive): the innovation ν = z - h(θ̂) with S = H P Hᵀ + σ² I;
   νᵀ S⁻¹ ν beyond the χ²(2) quantile of ``outlier_probability`` → rejected;
-* the first pair of a point (recursive): its Gauss–Newton residual (1 degree of
-  freedom) beyond the χ²(1) quantile → the older observation is rejected and the
-  point starts again from the newer one;
+* the first pair of a point (recursive) is provisional until the next view passes
+  the gate; a pair whose Gauss–Newton residual (1 degree of freedom) fails the
+  χ²(1) quantile is kept as a conflict.  Three observations that do not agree are
+  resolved: the one whose removal leaves the most consistent pair (which must pass
+  χ²(1)) is rejected and the point continues from that pair; with no consistent
+  pair the oldest is rejected;
 * batch: the leave-one-out residual of every observation, rᵀ (σ² (I - J N⁻¹ Jᵀ))⁻¹ r,
   worst first, one per point per round, until all pass; a two-view point whose
   residual fails the χ²(1) test loses both observations.
@@ -61,8 +65,8 @@ covariances are scaled by the final σ².
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from concurrent.futures import Executor
-from dataclasses import dataclass, field
+from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
@@ -73,6 +77,8 @@ from ..estimation.kalman import kalman_update
 from .pinhole import (
     CameraSet,
     PointStatus,
+    _inverse3,
+    _solve3,
     decompose_projection,
     project_each,
     project_points,
@@ -108,7 +114,7 @@ DEFAULT_CHUNK_POINTS = 65_536
 # Iterated EKF: at most this many relinearisations; stop when no component moves more than
 # _IEKF_TOLERANCE of its own standard deviation.
 _IEKF_ITERATIONS = 10
-_IEKF_TOLERANCE = 1e-8
+_IEKF_TOLERANCE = 1e-6
 # Gauss–Newton iterations of the two-view start.
 _START_ITERATIONS = 20
 # A two-view (unit-σ) normal matrix more ill-conditioned than this carries no depth at all.
@@ -116,6 +122,8 @@ _MAX_CONDITION = 1e14
 # Auto σ: stop re-estimating when it changes by less than this fraction; at most this many passes.
 _SIGMA_TOLERANCE = 5e-3
 _MAX_SIGMA_PASSES = 8
+# States converted from inverse depth to (X, Y, Z) together (bounds the temporaries).
+_CONVERSION_BLOCK = 16_384
 # Points used to decide the scene orientation (the sign of the depths most points agree on).
 _ORIENTATION_SAMPLE = 2_000
 
@@ -261,7 +269,7 @@ class FusedStructure:
     degrees_of_freedom: int
     orientation: int
     passes: int
-    history: FusionHistory | None = field(default=None)
+    history: FusionHistory | None = None
 
     @property
     def fused(self) -> np.ndarray:
@@ -378,13 +386,13 @@ def _start_pairs(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        step = _solve_ridged(N[idx], g_[idx])
+        step = _solve3(N[idx], g_[idx])
         trial = theta[idx] + step
         Nt, gt, ct = normal_equations(trial, obs[:, idx])
         better = np.isfinite(ct) & (ct <= cost[idx])
         acc = idx[better]
         theta[acc], N[acc], g_[acc], cost[acc] = trial[better], Nt[better], gt[better], ct[better]
-        small = np.abs(step) <= _IEKF_TOLERANCE * np.sqrt(np.abs(np.diagonal(_inv_ridged(N[idx]), axis1=1, axis2=2)))
+        small = np.abs(step) <= _IEKF_TOLERANCE * np.sqrt(np.abs(np.diagonal(_inverse3(N[idx]), axis1=1, axis2=2)))
         active[idx] = better & ~small.all(axis=1)
     evals = np.linalg.eigvalsh(N)
     usable = np.isfinite(evals).all(axis=1) & (evals[:, 0] > evals[:, 2] / _MAX_CONDITION) & np.isfinite(theta).all(1)
@@ -393,23 +401,12 @@ def _start_pairs(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
     return theta, cov, cost, usable
 
 
-def _solve_ridged(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ridge = 1e-14 * np.trace(A, axis1=1, axis2=2) + np.finfo(float).tiny
-    return np.linalg.solve(A + ridge[:, None, None] * np.eye(3), b[..., None])[..., 0]
-
-
-def _inv_ridged(A: np.ndarray) -> np.ndarray:
-    ridge = 1e-14 * np.trace(A, axis1=1, axis2=2) + np.finfo(float).tiny
-    return np.linalg.inv(A + ridge[:, None, None] * np.eye(3))
-
-
 def _iterated_update(Q: np.ndarray, prior: np.ndarray, P: np.ndarray, z: np.ndarray, sigma: float, gate: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gated iterated EKF update of unit-σ states by one 2-D projection each.
 
-    Returns the posterior θ and covariance (the prior where rejected), the
-    normalised innovation squared νᵀ S⁻¹ ν at the prior (in units of σ²) and the
-    accepted mask.
+    Returns the posterior θ and covariance (the prior where rejected) and the accepted
+    mask: the normalised innovation νᵀ S⁻¹ ν at the prior, in units of σ², within ``gate``.
     """
     eye2 = np.eye(2)
     pix, _, H = project_each(Q, prior)
@@ -432,7 +429,7 @@ def _iterated_update(Q: np.ndarray, prior: np.ndarray, P: np.ndarray, z: np.ndar
             np.abs(np.diagonal(res.P, axis1=1, axis2=2)))
         theta[active], cov[active] = res.x, res.P
         active = active[moved.any(axis=1)]
-    return theta, cov, nis, accept
+    return theta, cov, accept
 
 
 @dataclass(frozen=True)
@@ -455,8 +452,9 @@ class _ChunkResult:
     status: np.ndarray
     used: np.ndarray  # (V, n) bool accepted observations
     rejected: np.ndarray  # (V, n) bool
-    residuals: np.ndarray  # (V, n, 2) observed - projected, NaN where unseen or no estimate
-    history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None  # views, local points, X, cov (unit σ)
+    residuals: np.ndarray  # (V, n) length of observed - projected, NaN where unseen or no estimate
+    # views, local points, states and their unit-σ covariances (θ for recursive, else X)
+    history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
     anchors: np.ndarray | None = None  # (n,) for states in inverse depth: points/covariances hold θ and its P
 
 
@@ -593,7 +591,7 @@ def _recursive_states_numpy(job: _Chunk) -> _States:
         # updates: gated iterated EKF, all points at once
         idx = np.flatnonzero(verified_now | provisional_now)
         if idx.size:
-            th, P, _, ok = _iterated_update(g.Q[first[idx], v], theta[idx], cov[idx], obs[v, idx],
+            th, P, ok = _iterated_update(g.Q[first[idx], v], theta[idx], cov[idx], obs[v, idx],
                                             job.sigma, job.gate2)
             acc = idx[ok]
             theta[acc], cov[acc] = th[ok], P[ok]
@@ -690,15 +688,15 @@ def _finish(X, C, status, used, rejected, residuals, history, anchors=None) -> _
     ok = status == PointStatus.OK
     X = np.where(ok[:, None], X, np.nan)
     C = np.where(ok[:, None, None], C, np.nan)
-    residuals = np.where(ok[None, :, None], residuals, np.nan)
-    return _ChunkResult(X, C, status, used & ok, rejected, residuals, history, anchors)
+    lengths = np.where(ok[None, :], np.linalg.norm(residuals, axis=2), np.nan)
+    return _ChunkResult(X, C, status, used & ok, rejected, lengths, history, anchors)
 
 
 def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """(V, n) rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r of each used observation (unit σ), NaN elsewhere."""
     J = projection_jacobians(P, X)
     J = np.where(mask[..., None, None], J, 0.0)
-    N_inv = _inv_ridged(np.einsum("vnai,vnaj->nij", J, J))
+    N_inv = _inverse3(np.einsum("vnai,vnaj->nij", J, J))
     hat = np.einsum("vnai,nij,vnbj->vnab", J, N_inv, J)
     A = np.eye(2) - hat
     det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
@@ -966,7 +964,7 @@ def _sum_squares(results: Iterable[_ChunkResult]) -> tuple[float, int, int]:
     for res in results:
         ok = res.status == PointStatus.OK
         u = res.used & ok[None]
-        total += float(np.sum(np.where(u[..., None], res.residuals, 0.0) ** 2))
+        total += float(np.sum(np.where(u, res.residuals, 0.0) ** 2))
         n_obs += int(u.sum())
         n_pts += int(ok.sum())
     return total, n_obs, n_pts
@@ -982,7 +980,7 @@ def fuse(
     *,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
     orientation: int | None = None,
-    executor: Executor | None = None,
+    executor: Any | None = None,
 ) -> FusedStructure:
     """Fuse each point's observations over many views with known cameras into a 3-D point and its covariance.
 
@@ -1011,9 +1009,10 @@ def fuse(
     orientation : +1, -1 or None
         +1: points lie in front of the cameras (positive depth with P = λ K [R | t]);
         -1: a mirrored reconstruction; None: the sign most points agree on.
-    executor : concurrent.futures.Executor, optional
-        Runs the chunks (e.g. ``dask.distributed.Client.get_executor()``); by
-        default they run one after the other here.
+    executor : object with a ``map(fn, items)`` method, optional
+        Runs the chunks (a ``concurrent.futures.Executor``, or
+        :class:`kalmansfm.pipeline.cluster.ScatteringExecutor` on Dask); by default
+        they run one after the other here.
 
     Returns
     -------
@@ -1056,7 +1055,7 @@ def fuse(
 
 
 def fuse_with_settings(observations: object, cameras: CameraSet | object, settings: FusionSettings,
-                       executor: Executor | None = None) -> FusedStructure:
+                       executor: Any | None = None) -> FusedStructure:
     """:func:`fuse` with its options given as one :class:`FusionSettings`."""
     cams, obs = _validate(observations, cameras)
     orientation = _orientation(cams, obs) if settings.orientation is None else settings.orientation
@@ -1078,8 +1077,8 @@ def fuse_with_settings(observations: object, cameras: CameraSet | object, settin
         # Pilot without gates: a robust σ from the median squared residual, |r|² / σ² ≈ χ²(2) (median 2 ln 2),
         # with the degrees of freedom counted.
         results = run(1.0, np.inf, np.inf, False)
-        sq = np.concatenate([np.sum(np.where((r.used & (r.status == PointStatus.OK)[None])[..., None],
-                                             r.residuals, np.nan) ** 2, axis=2).ravel() for r in results])
+        sq = np.concatenate([np.where(r.used & (r.status == PointStatus.OK)[None], r.residuals, np.nan).ravel() ** 2
+                             for r in results])
         sq = sq[np.isfinite(sq)]
         total, n_obs, n_pts = _sum_squares(results)
         dof = 2 * n_obs - 3 * n_pts
@@ -1124,10 +1123,43 @@ def _next_sigma(sigma: float, estimate: float, previous: tuple[float, float] | N
 
 def _to_points(g: _Geometry, anchors: np.ndarray | None, x: np.ndarray, cov: np.ndarray, sigma: float
                ) -> tuple[np.ndarray, np.ndarray]:
-    """(X, Y, Z) and covariance at pixel noise σ from a chunk's unit-σ states (inverse depth when anchored)."""
+    """(X, Y, Z) and covariance at pixel noise σ from a chunk's unit-σ states (inverse depth when anchored).
+
+    Converted in blocks, so the temporaries of the second-order term stay small.
+    """
     if anchors is None:
         return x, cov * sigma**2
-    return _theta_to_point(g, np.maximum(anchors, 0), x, cov * sigma**2)
+    X, C = np.empty_like(x), np.empty_like(cov)
+    for start in range(0, x.shape[0], _CONVERSION_BLOCK):
+        b = slice(start, start + _CONVERSION_BLOCK)
+        X[b], C[b] = _theta_to_point(g, np.maximum(anchors[b], 0), x[b], cov[b] * sigma**2)
+    return X, C
+
+
+def _assemble_history(g: _Geometry, results: list[_ChunkResult], slices: list[slice], sigma: float) -> FusionHistory:
+    """The chunks' histories in one :class:`FusionHistory`, sorted by view then point.
+
+    Every entry is written once, straight to its sorted place (no second copy of the history).
+    """
+    sizes = [r.history[0].size for r in results]
+    starts = np.cumsum([0, *sizes])
+    views = np.concatenate([r.history[0] for r in results]).astype(np.int64)
+    points = np.concatenate([r.history[1] + chunk.start for r, chunk in zip(results, slices)]).astype(np.int64)
+    order = np.lexsort((points, views))
+    place = np.empty_like(order)
+    place[order] = np.arange(order.size)
+    H = order.size
+    hx, hc = np.empty((H, 3)), np.empty((H, 3, 3))
+    states = results[0].anchors is not None
+    hs, hsc, ha = (np.empty((H, 3)), np.empty((H, 3, 3)), np.empty(H, np.int64)) if states else (None, None, None)
+    for r, begin, end in zip(results, starts[:-1], starts[1:]):
+        _, local, x, cov = r.history
+        where = place[begin:end]
+        anchors = None if r.anchors is None else r.anchors[local]
+        hx[where], hc[where] = _to_points(g, anchors, x, cov, sigma)
+        if states:
+            hs[where], hsc[where], ha[where] = x, cov * sigma**2, anchors
+    return FusionHistory(views[order], points[order], hx, hc, hs, hsc, ha)
 
 
 def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult], slices: list[slice], V: int,
@@ -1138,8 +1170,7 @@ def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult
     status = np.concatenate([r.status for r in results])
     used = np.concatenate([r.used for r in results], axis=1)
     rejected = np.concatenate([r.rejected for r in results], axis=1)
-    res = np.concatenate([r.residuals for r in results], axis=1)
-    lengths = np.linalg.norm(res, axis=2)
+    lengths = np.concatenate([r.residuals for r in results], axis=1)
     ok = status == PointStatus.OK
     views = used.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -1148,18 +1179,6 @@ def _assemble(settings: FusionSettings, g: _Geometry, results: list[_ChunkResult
     dof = int(2 * used[:, ok].sum() - 3 * ok.sum())
     hist = None
     if settings.history:
-        parts = [(r.history, s.start) for r, s in zip(results, slices)]
-        hv = np.concatenate([h[0] for h, _ in parts]).astype(np.int64)
-        hp = np.concatenate([h[1] + start for h, start in parts]).astype(np.int64)
-        converted = [_to_points(g, None if r.anchors is None else r.anchors[r.history[1]], r.history[2],
-                                r.history[3], sigma) for r in results]
-        hx = np.concatenate([x for x, _ in converted])
-        hc = np.concatenate([c for _, c in converted])
-        extra: tuple = (None, None, None)
-        if results[0].anchors is not None:
-            extra = (np.concatenate([r.history[2] for r in results]),
-                     np.concatenate([r.history[3] for r in results]) * sigma**2,
-                     np.concatenate([r.anchors[r.history[1]] for r in results]))
-        hist = FusionHistory(hv, hp, hx, hc, *extra)._take(np.lexsort((hp, hv)))
+        hist = _assemble_history(g, results, slices, sigma)
     return FusedStructure(settings.method, points, cov, status, views, rms, lengths, rejected, float(sigma),
                           estimated, dof, g.orientation, passes, hist)
