@@ -255,7 +255,7 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
         seen_k = idx[np.isfinite(obs[k, idx, 0])]
         if len(seen_k):
             Q = np.broadcast_to(kz[k], (len(seen_k), 3, 4))
-            post, post_cov, _, accept = _iterated_update(Q, x[seen_k], cov[seen_k] / sigma**2, obs[k, seen_k],
+            post, post_cov, accept = _iterated_update(Q, x[seen_k], cov[seen_k] / sigma**2, obs[k, seen_k],
                                                          sigma, gate)
             x[seen_k], cov[seen_k] = post, post_cov * sigma**2
             used[k, seen_k[accept]] = True
