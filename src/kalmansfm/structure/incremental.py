@@ -34,6 +34,8 @@ _GLOBAL_BUNDLE_GROWTH = 1.25
 _ANGLE_CAP_DEG = 20.0
 # Initial pair: a pair is degenerate when a homography explains at least this share of the essential inliers.
 _MAX_HOMOGRAPHY_SHARE = 0.8
+
+
 @dataclass
 class _PairCandidate:
     first: int
@@ -165,7 +167,8 @@ class _Incremental:
         # mean squared displacement of the shared tracks (normalised units): a cheap parallax proxy
         x = np.where(self.seen[..., None], self.normalised, 0.0)
         sq = np.einsum("fpi,fpi->fp", x, x)
-        moved = (sq @ s.T + s @ sq.T - 2.0 * np.einsum("apk,bpk->ab", x, x)) / np.maximum(shared, 1.0)
+        flat = x.reshape(self.F, -1)
+        moved = (sq @ s.T + s @ sq.T - 2.0 * flat @ flat.T) / np.maximum(shared, 1.0)
         a, b = np.triu_indices(self.F, 1)
         need = 2 * self.settings.min_registration_points
         ok = shared[a, b] >= need
