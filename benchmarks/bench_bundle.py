@@ -26,11 +26,8 @@ because the machine is shared.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -42,11 +39,9 @@ from kalmansfm.structure.bundle import (
     reprojection_residuals,
 )
 from kalmansfm.structure.perspective import reconstruct_perspective
-from kalmansfm.structure.pinhole import decompose_projection
 from kalmansfm.structure.rotation import rotation_exp
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / ".." / "shared" / "data"
+from real_data_perspective import load  # the Oxford reader of the sibling script (benchmarks/ is on sys.path)
 
 
 def cost(problem, R, C, X) -> float:
@@ -67,12 +62,7 @@ def synthetic(strength: float, seed: int = 0) -> dict:
 
 
 def oxford_house() -> dict:
-    spec = importlib.util.spec_from_file_location("oxford_to_csv", ROOT / "examples" / "oxford_to_csv.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    data = module.load_oxford(DATA / "oxford_model_house")
-    pose = decompose_projection(data.cameras.matrices)
+    data, pose = load("oxford_model_house")
     K = pose.intrinsics
     rec = reconstruct_perspective(data.observations, K)
     obs = ObservationList.from_dense(data.observations, rec.inliers)
