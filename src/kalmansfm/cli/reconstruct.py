@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
           + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")
     print(f"rank-3 residual: {s.residual_rms_px:.4f} px RMS")
-    for note in s.warnings:
+    for note in (*s.warnings, *result.summary.warnings):
         print(f"warning: {note}")
     print(f"wrote {args.out}")
     return 0

@@ -12,9 +12,9 @@ from ..errors import InvalidInputError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary
 from ..io.tracks import read_tracks
-from ..structure import Reconstruction
+from ..structure import PointUncertainty, Reconstruction
 from ..tracking import Tracks, smooth_tracks
-from .evaluate import factorize_tracks, structure_metrics
+from .evaluate import factorize_tracks, structure_metrics, structure_uncertainty
 from .stage import Stopwatch, stage_structure, stage_summary
 
 __all__ = ["ReconstructRun", "read_tracks_for_factorization", "run_reconstruct"]
@@ -24,12 +24,13 @@ log = logging.getLogger("kalmansfm")
 
 @dataclass(frozen=True)
 class ReconstructRun:
-    """The observations used, the reconstruction and the summary of one ``reconstruct`` run."""
+    """The observations used, the reconstruction, its points' uncertainty and the summary of one ``reconstruct`` run."""
 
     out_dir: Path
     tracks: Tracks
     reconstruction: Reconstruction
     summary: RunSummary
+    uncertainty: PointUncertainty
 
 
 def read_tracks_for_factorization(path: str | os.PathLike[str], *, smooth: bool | None = None) -> Tracks:
@@ -89,6 +90,10 @@ def run_reconstruct(
     """Factorize the tracks of ``tracks_path`` and write structure.csv, structure.ply, motion.csv,
     structure.png and summary.json to ``out_dir``.
 
+    Every point gets its covariance and status in structure.csv
+    (:func:`~kalmansfm.structure.point_uncertainty`); unreliable points are left out of
+    structure.png and counted in the summary's warnings.
+
     Parameters
     ----------
     tracks_path : ``tracks.npz``, ``tracks.csv`` or a ``frame,track_id,x,y`` CSV.
@@ -116,13 +121,16 @@ def run_reconstruct(
     log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
     with clock.step("factorization"):
         reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
+        uncertainty = structure_uncertainty(tracks, reconstruction, weighted=has_weights)
     summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
                          smoothed=tracks.smoothed,
-                         structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed))
+                         structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed,
+                                                     uncertainty=uncertainty),
+                         warnings=uncertainty.warnings)
     name = Path(tracks_path).name
     with output_directory(out_dir) as out:
         with clock.step("writing"):
-            names = stage_structure(out, reconstruction, tracks.track_ids, frames=tracks.frames,
+            names = stage_structure(out, reconstruction, tracks.track_ids, uncertainty=uncertainty, frames=tracks.frames,
                                     comment=f"kalmansfm {__version__} from {name}", plot=plot)
         summary = stage_summary(out, summary, clock, names)
-    return ReconstructRun(Path(out_dir), tracks, reconstruction, summary)
+    return ReconstructRun(Path(out_dir), tracks, reconstruction, summary, uncertainty)

@@ -8,10 +8,13 @@ from .factorization import Reconstruction, factorize, metric_upgrade
 from .landmark import LandmarkEstimates, estimate_landmarks
 from .lowrank import TruncatedSVD, subspace_angle, truncated_svd
 from .triangulation import TriangulationResult, triangulate_midpoint
+from .uncertainty import PointStatus, PointUncertainty, point_uncertainty
 
 __all__ = [
     "Alignment",
     "LandmarkEstimates",
+    "PointStatus",
+    "PointUncertainty",
     "Reconstruction",
     "TriangulationResult",
     "TruncatedSVD",
@@ -20,6 +23,7 @@ __all__ = [
     "estimate_landmarks",
     "factorize",
     "metric_upgrade",
+    "point_uncertainty",
     "subspace_angle",
     "triangulate_midpoint",
     "truncated_svd",
