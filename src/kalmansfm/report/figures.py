@@ -28,6 +28,7 @@ __all__ = [
     "covariance_trace_figure",
     "status_timeline_figure",
     "singular_values_figure",
+    "shape_views",
     "shape_views_figure",
     "camera_rotations",
     "camera_rotation_figure",
@@ -42,10 +43,8 @@ __all__ = [
 STATUS_COLORS = ("#f0f0f0", "#2ca02c", "#ff9f1c", "#d62728", "#9ecae1")
 # Ticks per axis of the shape plots: few enough that labels like -6000 do not run together.
 _SHAPE_TICKS = 4
-# Points beyond this quantile of the distances from the median are left outside the axes ...
-_ROBUST_QUANTILE = 0.95
-# ... of a half-width this much wider than that quantile (and never narrower than all of the core).
-_ROBUST_MARGIN = 1.25
+# Points farther from the median than this many times the median distance are left outside the axes.
+_STRAY_FACTOR = 4.0
 
 
 def _figure_png(fig: plt.Figure) -> bytes:
@@ -122,10 +121,10 @@ def singular_values_figure(singular_values: Sequence[float]) -> bytes:
 def robust_half_width(points: np.ndarray) -> tuple[np.ndarray, float]:
     """Centre and half-width of cubic axes that hold the bulk of ``points`` (N, 3).
 
-    The centre is the median; the half-width is 1.25 × the 95th percentile of the largest
-    per-axis distance from it (the largest distance when that is less than 1.25 × the
-    percentile), so that a few points far from the rest stay outside instead of
-    shrinking the others to a blob.
+    The centre is the median.  Each point's reach is its largest per-axis distance from
+    it; the axes hold every point whose reach is at most 4 × the median reach (a Gaussian
+    or box-shaped cloud lies well within that), so that a few points far from the rest stay
+    outside instead of shrinking the others to a blob.
 
     Examples
     --------
@@ -140,8 +139,7 @@ def robust_half_width(points: np.ndarray) -> tuple[np.ndarray, float]:
         return np.zeros(3), 1.0
     centre = np.median(pts, axis=0)
     reach = np.abs(pts - centre).max(axis=1)
-    core = float(np.quantile(reach, _ROBUST_QUANTILE))
-    half = float(reach.max()) if reach.max() <= _ROBUST_MARGIN * core else _ROBUST_MARGIN * core
+    half = float(reach[reach <= _STRAY_FACTOR * np.median(reach)].max())
     return centre, max(half * 1.05, 1e-9)
 
 
@@ -166,6 +164,13 @@ def shape_views_figure(
     outside them, and ``hidden`` points left out by the caller (unreliable ones), are
     counted in the title.
     """
+    return _figure_png(shape_views(points, labels, truth=truth, hidden=hidden))
+
+
+def shape_views(
+    points: np.ndarray, labels: Sequence[int], *, truth: np.ndarray | None = None, hidden: int = 0
+) -> plt.Figure:
+    """The Matplotlib figure of :func:`shape_views_figure` (the caller closes it)."""
     pts = np.asarray(points, dtype=float)
     colors = track_colors(labels)
     everything = pts if truth is None else np.vstack([pts, truth])
@@ -221,7 +226,7 @@ def shape_views_figure(
         notes.append(f"{hidden} unreliable not shown")
     fig.suptitle("; ".join(notes), fontsize=9, y=1.0)
     fig.tight_layout()
-    return _figure_png(fig)
+    return fig
 
 
 def camera_rotations(motion: CameraMotion) -> tuple[np.ndarray, np.ndarray]:

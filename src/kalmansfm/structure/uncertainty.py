@@ -137,12 +137,18 @@ class PointUncertainty:
         bad = reconstructed & ~self.reliable
         if not bad.any():
             return ()
-        few = bad & (self.views < self.min_views)
+        few = int((bad & (self.views < self.min_views)).sum())
+        reasons = []
+        if few:
+            reasons.append(f"{few} seen in fewer than {self.min_views} frames")
+        if bad.sum() > few:
+            reasons.append(
+                f"{int(bad.sum()) - few} with a 1σ uncertainty above {self.bound_px:.3g} px = "
+                f"{self.max_std_ratio:g} × the shape's radius"
+            )
         return (
             f"{int(bad.sum())} of {int(reconstructed.sum())} reconstructed points are unreliable "
-            f"({int(few.sum())} seen in fewer than {self.min_views} frames, {int((bad & ~few).sum())} with a 1σ "
-            f"uncertainty above {self.bound_px:.3g} px = {self.max_std_ratio:g} × the shape's radius): marked "
-            "'unreliable' in structure.csv and left out of the plots",
+            f"({'; '.join(reasons)}): marked 'unreliable' in structure.csv and left out of the plots",
         )
 
 
@@ -194,8 +200,8 @@ def point_uncertainty(
     >>> round(u.noise_std, 1), u.views[:3].tolist(), u.status[:3].tolist()
     (0.5, [2, 8, 8], [1, 0, 0])
     >>> u.warnings
-    ("1 of 30 reconstructed points are unreliable (1 seen in fewer than 4 frames, 0 with a 1σ uncertainty above \
-19.1 px = 0.25 × the shape's radius): marked 'unreliable' in structure.csv and left out of the plots",)
+    ("1 of 30 reconstructed points are unreliable (1 seen in fewer than 4 frames): marked 'unreliable' in \
+structure.csv and left out of the plots",)
     >>> bool(u.largest_std[1] < 1.0)
     True
     """
