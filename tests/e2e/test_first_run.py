@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from report_checks import decode_png_data_uri
 
+from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
 from kalmansfm.io.structure import read_points_table
 from kalmansfm.io.tracks import read_tracks_npz
@@ -61,6 +62,17 @@ def test_unreliable_points_are_marked_counted_and_left_out_of_the_plots(hotel_ru
     assert '<input id="view3d-unreliable" type="checkbox">' in document
     points = np.array(payload["points"])
     assert payload["radius"] < 0.5 * np.abs(points[far]).max()
+
+
+def test_reconstruct_of_the_same_tracks_gives_the_same_verdict(hotel_run, tmp_path, capsys):
+    """``kalmansfm track`` + ``kalmansfm reconstruct tracks.npz`` (the issue's other path) marks the same points."""
+    assert main(["reconstruct", str(hotel_run.out / "tracks.npz"), "--out", str(tmp_path / "shape"), "--quiet"]) == 0
+    demo = read_points_table(hotel_run.out / "structure.csv")
+    again = read_points_table(tmp_path / "shape" / "structure.csv")
+    np.testing.assert_array_equal(again.track_ids, demo.track_ids)
+    np.testing.assert_array_equal(again.status, demo.status)
+    (warning,) = read_summary(tmp_path / "shape" / "summary.json").warnings
+    assert f"warning: {warning}" in capsys.readouterr().out
 
 
 def test_the_start_frames_are_initialising_in_every_file(hotel_run):

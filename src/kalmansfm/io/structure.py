@@ -80,7 +80,8 @@ def structure_csv(
         n = len(keep)
         if cov.shape != (n, 3, 3) or seen.shape != (n,) or codes.shape != (n,):
             raise InvalidInputError(
-                f"need covariances ({n}, 3, 3), views ({n},) and status ({n},); got {cov.shape}, {seen.shape}, {codes.shape}"
+                f"need covariances ({n}, 3, 3), views ({n},) and status ({n},); "
+                f"got {cov.shape}, {seen.shape}, {codes.shape}"
             )
         words = [PointStatus(int(c)).label for c in codes[keep]]
         upper = cov[keep][:, _UPPER[0], _UPPER[1]]

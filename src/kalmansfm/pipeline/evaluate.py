@@ -14,7 +14,7 @@ from ..io.ground_truth import GroundTruth
 from ..io.summary import Similarity, StructureMetrics, TrackingMetrics, TrackMetrics, TruthComparison
 from ..structure import PointUncertainty, Reconstruction, align_similarity, factorize, point_uncertainty
 from ..structure.cameras import camera_rotation_matrices, rotation_angle_deg
-from ..tracking.tracks import LOST, MEASURED, PREDICTED, Tracks
+from ..tracking.tracks import LOST, PREDICTED, Tracks
 
 __all__ = ["compare_with_truth", "factorize_tracks", "structure_metrics", "structure_uncertainty", "tracking_metrics"]
 

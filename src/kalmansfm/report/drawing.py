@@ -1,8 +1,8 @@
 """Tracks drawn on frames with OpenCV: the report's player and strip, ``tracks.png`` and ``tracks.gif``.
 
 One drawing for every picture of tracks: each track has one colour (:func:`track_colors`,
-by its id, the same in every picture, table and plot), measured points are filled discs, coasting ones rings, lost ones crosses,
-initialising ones (a track's first two frames) filled squares, and the ellipse around each
+by its id, the same in every picture, table and plot), measured points are filled discs,
+coasting ones rings, lost ones crosses, initialising ones (a track's first two frames) filled squares, and the ellipse around each
 measured or coasting point is the tracker's gate, (p - p̂)ᵀ Σ_pos⁻¹ (p - p̂) = c² with the
 gate radius c the tracker actually used.  An initialising point has no gate drawn: its
 covariance is the start-up prior Σ0, the same for every new track.  Functions return images or PNG/GIF

@@ -110,20 +110,24 @@ def _table(
     sortable: bool = False,
     numeric: Sequence[bool] = (),
     fold: int | None = None,
+    drop_empty: bool = False,
 ) -> str:
-    """An HTML table; with ``fold`` a long one shows its first ``fold`` rows and a button for the rest.
+    """An HTML table.
 
-    With ``fold`` columns that are empty in every row (an em dash throughout) are left out.
+    With ``fold`` a table longer than that shows its first ``fold`` rows and a button for
+    the rest (the page script folds it; without script every row shows).  With
+    ``drop_empty`` a column empty in every row (an em dash throughout) is left out.
     """
     rows = [list(row) for row in rows]
-    if fold is not None and rows:
-        keep = [k for k in range(len(header)) if k == 0 or not all(_is_empty(row[k]) for row in rows)]
+    if drop_empty and rows:
+        keep = [k for k in range(len(header)) if not all(_is_empty(row[k]) for row in rows)]
         header = [header[k] for k in keep]
         numeric = [numeric[k] for k in keep if k < len(numeric)]
         rows = [[row[k] for k in keep] for row in rows]
-    css = " ".join(c for c in ("sortable" if sortable else "", "folded" if fold is not None and len(rows) > fold else "") if c)
-    fold_attr = f' data-fold="{fold}"' if fold is not None and len(rows) > fold else ""
-    css = f' class="{css}"' if css else ""
+    folded = fold is not None and len(rows) > fold
+    classes = [name for name, on in (("sortable", sortable), ("folded", folded)) if on]
+    css = f' class="{" ".join(classes)}"' if classes else ""
+    fold_attr = f' data-fold="{fold}"' if folded else ""
     head = "".join(f"<th>{_esc(h)}</th>" for h in header)
     body = []
     for row in rows:
@@ -369,7 +373,7 @@ def _section_tracks(run: RunFolder) -> str | None:
             "drawings of the frames and in the plots of the shape. Measured frames include the two "
             "initialising ones; the mean std leaves them out (their covariance is the start-up prior).</p>"
         )
-        parts.append(_table(header, rows, sortable=True, numeric=[True] * len(header), fold=TABLE_ROWS))
+        parts.append(_table(header, rows, sortable=True, numeric=[True] * len(header), fold=TABLE_ROWS, drop_empty=True))
     if "tracks.png" in run.figures:
         parts.append(_figure(run.figures["tracks.png"].read_bytes(), "The tracks over the last frame (from the run)."))
     return "".join(parts) or None
@@ -552,6 +556,8 @@ def _section_ground_truth(run: RunFolder) -> str | None:
         alignment = truth.alignment
         aligned = alignment.apply(recovered)  # type: ignore[union-attr]
         facts = [("points compared", len(ids)), ("shape error (% of the object's RMS radius)", truth.shape_error_pct)]
+        # the unreliable points are left out of the plot, as everywhere
+        shown = np.isin(ids, run.structure.track_ids[run.structure.reliable])  # type: ignore[union-attr]
         parts.append("<h3>3D shape</h3>" + _table(["", "value"], facts))
         if alignment.mirrored:  # type: ignore[union-attr]
             parts.append(
@@ -560,7 +566,8 @@ def _section_ground_truth(run: RunFolder) -> str | None:
             )
         parts.append(
             _figure(
-                figures.shape_views_figure(aligned, ids.tolist(), truth=true_points),
+                figures.shape_views_figure(aligned[shown], ids[shown].tolist(), truth=true_points[shown],
+                                           hidden=int((~shown).sum())),
                 "Recovered points after the best similarity transform onto the ground truth (dots) and the "
                 "ground truth (rings).",
             )

@@ -40,11 +40,10 @@ What Σ_p leaves out:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 
-from .._validation import as_float_array
+from .._validation import LabelledEnum, as_float_array
 from ..errors import InvalidInputError
 from .factorization import Reconstruction
 
@@ -59,7 +58,7 @@ MAX_STD_RATIO = 0.25
 _GAUGE_PARAMETERS = 12
 
 
-class PointStatus(IntEnum):
+class PointStatus(LabelledEnum):
     """Whether a reconstructed point is trusted (``structure.csv`` writes the lower-case name).
 
     Examples
@@ -72,18 +71,6 @@ class PointStatus(IntEnum):
     OK = 0
     #: seen in too few frames, or too uncertain (usually in depth) to say where it is
     UNRELIABLE = 1
-
-    @property
-    def label(self) -> str:
-        """The word files use for this status."""
-        return self.name.lower()
-
-    @classmethod
-    def from_label(cls, label: str) -> PointStatus:
-        """The status named ``label`` (as :attr:`label` writes it); raises ``KeyError`` otherwise."""
-        if label != label.lower():
-            raise KeyError(label)
-        return cls[label.upper()]
 
 
 @dataclass(frozen=True)

@@ -9,11 +9,11 @@ frame; files store its integer value (``tracks.npz``) or its lower-case name (``
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from enum import IntEnum
 from typing import Any
 
 import numpy as np
 
+from .._validation import LabelledEnum
 from ..errors import InvalidInputError
 from .settings import TrackerSettings
 
@@ -30,7 +30,7 @@ __all__ = [
 ]
 
 
-class TrackStatus(IntEnum):
+class TrackStatus(LabelledEnum):
     """Status of a track in one frame.
 
     Examples
@@ -53,18 +53,6 @@ class TrackStatus(IntEnum):
     #: the start-up template match.  The position is a measurement; the covariance is the
     #: start-up prior Σ0 of the motion model, not a filtered estimate.
     INITIALISING = 4
-
-    @property
-    def label(self) -> str:
-        """The word files use for this status (``none``, ``measured``, ``predicted``, ``lost``, ``initialising``)."""
-        return self.name.lower()
-
-    @classmethod
-    def from_label(cls, label: str) -> TrackStatus:
-        """The status named ``label`` (as :attr:`label` writes it); raises ``KeyError`` otherwise."""
-        if label != label.lower():
-            raise KeyError(label)
-        return cls[label.upper()]
 
 
 # Short names for array comparisons (``tracks.status == MEASURED``).
