@@ -227,7 +227,7 @@ def _section_parameters(run: RunFolder) -> str | None:
         total = _total_seconds(run.summary)
         if total is not None:
             table_rows.append((_Html("<strong>total (the whole run)</strong>"), _Html(f"{total:.3f}")))
-        parts.append("<div><h3>Time per step (s)</h3>" + _table(["step", "seconds"], table_rows) + "</div>")
+        parts.append("<div><h3>Time per step (s)</h3>" + _table(["step", "seconds"], table_rows, numeric=[False, True]) + "</div>")
     parts.append("</div>")
     return "".join(parts)
 
