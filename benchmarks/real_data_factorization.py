@@ -22,7 +22,6 @@ import scipy.io
 from kalmansfm import NotEnoughDataError, track
 from kalmansfm.io.frames import read_frames
 from kalmansfm.pipeline import factorize_tracks
-from kalmansfm.tracking.tracks import MEASURED
 from kalmansfm.experiments import report_tracks
 from kalmansfm.report.figures import shape_views_figure
 from kalmansfm.structure import align_affine, align_similarity, factorize
@@ -164,7 +163,7 @@ def shipped(args: argparse.Namespace) -> None:
 
 
 def tracked_row(name: str, tracks, rec, seconds: float) -> str:
-    measured = tracks.status == MEASURED
+    measured = tracks.measured
     sv = ", ".join(f"{v:.4g}" for v in rec.singular_values[:5])
     notes = "; ".join(rec.warnings) if rec.warnings else "–"
     return (f"| {name} | {tracks.positions.shape[0]} × {tracks.positions.shape[1]} | {measured.mean():.0%} | {sv} | "
@@ -193,7 +192,7 @@ def tracked_sequences(images: Path | None) -> None:
             return tracks, None
         rows.append(tracked_row(name, tracks, rec, t_track))
         # The same tracks restricted to those measured in every frame: closed form, no completion.
-        everywhere = (tracks.status == MEASURED).all(axis=0)
+        everywhere = tracks.measured.all(axis=0)
         block = None
         if everywhere.sum() >= 4:
             block = factorize(tracks.positions[:, everywhere])
@@ -209,7 +208,7 @@ def tracked_sequences(images: Path | None) -> None:
     labels = house_labels()
     tracks, rec = run("cmu_house, from the 30 labels of frame 0", house_frames, labels[0],
                       picture="factorization_cmu_house_from_labels.png")
-    measured = tracks.status == MEASURED
+    measured = tracks.measured
     drift = np.linalg.norm(tracks.positions - labels, axis=2)
     label_rec = factorize(labels)
     fit = align_similarity(rec.points, label_rec.points, allow_reflection=True)
@@ -224,7 +223,7 @@ def tracked_sequences(images: Path | None) -> None:
         frames = list(read_frames(DATA / "opencv_samples" / video))
         frames = frames if limit is None else frames[:limit]
         tracks, rec = run(f"opencv_samples/{video}" + (f" (first {limit} frames)" if limit else ""), frames)
-        measured = tracks.status == MEASURED
+        measured = tracks.measured
         motion = np.linalg.norm(tracks.positions - tracks.positions[:1], axis=2)
         still = np.nanmedian(np.where(measured, motion, np.nan), axis=0)
         extra.append(f"{video}: median displacement from frame 0 per track: {np.nanmedian(still):.2f} px "

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 import numpy as np
 
 from .errors import InvalidInputError
@@ -72,3 +74,19 @@ def check_count(name: str, value: object, minimum: int, error: type[Exception] =
         wanted = "a non-negative integer" if minimum == 0 else f"an integer >= {minimum}"
         raise error(f"{name} must be {wanted}; got {value!r}")
     return int(value)  # type: ignore[arg-type]
+
+
+class LabelledEnum(IntEnum):
+    """A status code that files store as its integer value or as its lower-case name (its *label*)."""
+
+    @property
+    def label(self) -> str:
+        """The word files use for this code: the member's name in lower case."""
+        return self.name.lower()
+
+    @classmethod
+    def from_label(cls, label: str) -> LabelledEnum:
+        """The member named ``label`` (as :attr:`label` writes it); raises ``KeyError`` otherwise."""
+        if label != label.lower():
+            raise KeyError(label)
+        return cls[label.upper()]

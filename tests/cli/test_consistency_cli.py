@@ -44,9 +44,9 @@ def test_task7_batch_csv_has_one_row_per_iteration(main, capsys):
     "argv, fragment",
     [
         (["--task", "2", "--method", "batch"], "--method applies to --task 7 only"),
-        (["--task", "7", "--runs", "1"], "runs must be an integer >= 2"),
-        (["--task", "7", "--focal", "0"], "focal must be finite and > 0"),
-        (["--task", "7", "--pixel-noise", "-2"], "pixel_noise_std must be finite and > 0"),
+        (["--task", "7", "--runs", "1"], "--runs must be an integer >= 2"),
+        (["--task", "7", "--focal", "0"], "--focal must be finite and > 0"),
+        (["--task", "7", "--pixel-noise", "-2"], "--pixel-noise must be finite and > 0"),
         (["--task", "5"], "invalid choice"),
         (["--task", "7", "--method", "ekf"], "invalid choice"),
     ],

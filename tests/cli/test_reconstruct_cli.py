@@ -19,8 +19,11 @@ def test_reconstruct_writes_all_files(tmp_path, capsys):
     assert "singular values: [1272." in printed and "rank-3 residual: 2.88" in printed
     assert sorted(p.name for p in out.iterdir()) == [
         "motion.csv", "structure.csv", "structure.ply", "structure.png", "summary.json"]
-    structure = np.loadtxt(out / "structure.csv", delimiter=",", skiprows=1)
-    assert structure.shape == (9, 4) and structure[:, 0].tolist() == list(range(1, 10))
+    header = (out / "structure.csv").read_text().splitlines()[0]
+    assert header == "track_id,X,Y,Z,cov_XX,cov_XY,cov_XZ,cov_YY,cov_YZ,cov_ZZ,views,status"
+    structure = np.loadtxt(out / "structure.csv", delimiter=",", skiprows=1, usecols=range(11))
+    assert structure.shape == (9, 11) and structure[:, 0].tolist() == list(range(1, 10))
+    assert (structure[:, 10] == 30).all()  # every point seen in all 30 frames
     motion = np.loadtxt(out / "motion.csv", delimiter=",", skiprows=1)
     assert motion.shape == (30, 9) and motion[0, 0] == 1
     assert read_summary(out / "summary.json").structure.residual_rms_px == pytest.approx(2.88, abs=0.01)

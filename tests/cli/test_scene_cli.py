@@ -55,9 +55,9 @@ def run_cli(argv):
     [
         (["--size", "0x240"], "--size"),
         (["--size", "320"], "WIDTHxHEIGHT"),
-        (["--frames", "2"], "n_frames"),
-        (["--noise", "-1"], "pixel_noise_std"),
-        (["--occluder", "99,1,2"], "track_id"),
+        (["--frames", "2"], "--frames must be an integer >= 3"),
+        (["--noise", "-1"], "--noise must be a finite number >= 0"),
+        (["--occluder", "99,1,2"], "--occluder TRACK must be in 0 … 9"),
     ],
 )
 def test_bad_options_exit_2_with_one_line_and_no_folder(tmp_path, capsys, options, message):

@@ -65,7 +65,7 @@ def test_reconstruct_smooths_a_tracker_npz_by_default(tracked, tmp_path, capsys)
     # the observations are the smoothed measured positions, weighted by the smoothed std
     positions = read_tracks_for_factorization(npz)
     smoothed = smooth_tracks(read_tracks_npz(npz))
-    measured = smoothed.status == 1
+    measured = smoothed.measured
     np.testing.assert_array_equal(positions.observations()[measured], smoothed.positions[measured])
     np.testing.assert_array_equal(positions.position_std[measured], smoothed.position_std[measured])
     assert np.isnan(positions.observations()[~measured]).all()
@@ -76,7 +76,7 @@ def test_reconstruct_does_not_smooth_twice(tracked, tmp_path):
     assert main(["reconstruct", str(npz), "--out", str(tmp_path / "o"), "--no-plot", "-q"]) == 0
     assert read_summary(tmp_path / "o" / "summary.json").smoothed is True
     stored = read_tracks_npz(npz)
-    measured = stored.status == 1
+    measured = stored.measured
     np.testing.assert_array_equal(read_tracks_for_factorization(npz).observations()[measured], stored.positions[measured])
 
 

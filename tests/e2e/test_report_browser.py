@@ -107,3 +107,26 @@ def test_report_loads_in_a_browser(browser, report, tmp_path):
     assert grey.std() > 20, "screenshot is (nearly) blank"
     colourful = np.ptp(image.astype(int), axis=2) > 80
     assert colourful.mean() > 0.002, "no coloured figures or overlays visible"
+
+
+@pytest.mark.parametrize("browser", [CHROMIUM], ids=["chromium" if CHROMIUM else "no-chromium-plain-html-checks"])
+def test_a_real_footage_report_folds_its_table_and_hides_unreliable_points(browser, hotel_run, tmp_path):
+    """cmu_hotel (conftest.py): after the page script, 180 of the 200 per-track rows are folded away,
+    the unreliable points sit behind an unchecked box, and nothing went wrong in the console."""
+    report = hotel_run.out / "report.html"
+    document = report.read_text(encoding="utf-8")
+    parsed = report_checks.assert_self_contained(document)
+    assert {"view3d-unreliable", "shape-data", "player-frames"} <= parsed.ids
+    if browser is None:
+        assert 'data-fold="20"' in document and "show all 200 rows" in document
+        return
+    dom = run_chromium(
+        browser, tmp_path / "profile-hotel", "--enable-logging=stderr", "--v=0", "--dump-dom", report.as_uri()
+    )
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    status = re.search(r"<p id=\"js-status\"[^>]*>", dom.stdout).group(0)
+    assert 'data-ready="yes"' in status and "data-errors" not in status, status
+    assert console_lines(dom.stderr) == []
+    table = re.search(r'<table class="sortable folded" data-fold="20">(.*?)</table>', dom.stdout, re.S).group(1)
+    assert table.count("<tr hidden") == 180 and table.count("<tr>") == 1 + 20
+    assert re.search(r'<input id="view3d-unreliable" type="checkbox">', dom.stdout)

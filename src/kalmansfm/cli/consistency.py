@@ -12,6 +12,7 @@ from ..errors import InvalidInputError
 from ..experiments.consistency import SPACES, ConsistencyResult, run_consistency
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..structure.landmark import METHODS
+from ._options import as_typed
 
 _AXES = {1: ["distance"], 3: ["x", "y", "z"]}
 _STATE_AXES = ["x/z", "y/z", "1/z"]
@@ -24,7 +25,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         help="Monte Carlo check of the fused uncertainty (NEES, 1σ/3σ fractions)",
         description="Simulate an experiment N times with known truth and check whether each estimator's "
         "covariance matches its actual errors: per axis the fraction of errors within 1σ and 3σ, and the mean "
-        "NEES with its 95%% chi-square interval.  PASS means the final iteration's mean NEES is inside it.",
+        "NEES with its 95 % chi-square interval.  PASS means the final iteration's mean NEES is inside it.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--task", type=int, choices=[2, 7], required=True, help="Task 2 (1D fusion) or Task 7 (landmark)")
@@ -93,9 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if args.task == 2 and args.space != "point":
         raise InvalidInputError("--space applies to --task 7 only")
     with tqdm(total=args.runs, desc=f"task {args.task} runs", unit="run", disable=args.quiet, file=sys.stderr) as bar:
-        result = run_consistency(
-            args.task, args.method, args.runs, args.seed, args.focal, args.pixel_noise, progress=bar.update,
-            space=args.space.replace("-", "_"),
-        )
+        with as_typed({"runs": "--runs", "seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-noise"}):
+            result = run_consistency(
+                args.task, args.method, args.runs, args.seed, args.focal, args.pixel_noise, progress=bar.update,
+                space=args.space.replace("-", "_"),
+            )
     sys.stdout.write(format_text(result) if args.format == "text" else format_csv(result))
     return 0

@@ -6,6 +6,7 @@ import argparse
 import webbrowser
 
 from ..pipeline import describe, run_demo
+from ._options import as_typed
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -45,10 +46,11 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and print a short summary."""
-    result = run_demo(
-        args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet,
-        camera=args.camera, focal=args.focal,
-    )
+    with as_typed({"n_frames": "--frames", "seed": "--seed", "focal": "--focal"}):
+        result = run_demo(
+            args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet,
+            camera=args.camera, focal=args.focal,
+        )
     print(describe(result))
     if args.open and result.report is not None:
         webbrowser.open(result.report.resolve().as_uri())

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 from .._version import __version__
 from ..errors import KalmanSfmError, ReportInterrupted
+from ._options import HelpFormatter
 
 # Order shown in --help.
 SUBCOMMANDS = ["demo", "track", "reconstruct", "fuse", "report", "batch", "tables", "consistency", "scene"]
@@ -73,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name in SUBCOMMANDS:
         module = importlib.import_module(f"{__package__}.{name.replace('-', '_')}")
         module.add_parser(sub, [common])
+    for subparser in (parser, *sub.choices.values()):
+        subparser.formatter_class = HelpFormatter  # one way of showing defaults in every --help
     return parser
 
 

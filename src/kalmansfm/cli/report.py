@@ -7,6 +7,7 @@ import webbrowser
 from pathlib import Path
 
 from ..report.html import build_report
+from ._options import as_typed
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -29,7 +30,8 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     """Build the report, print its path, optionally open it."""
-    report = build_report(args.run_dir, out_name=args.name, progress=not args.quiet)
+    with as_typed({"out_name": "--name"}):
+        report = build_report(args.run_dir, out_name=args.name, progress=not args.quiet)
     print(report)
     if args.open:
         webbrowser.open(report.resolve().as_uri())

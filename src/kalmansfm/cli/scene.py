@@ -8,6 +8,7 @@ import logging
 from ..errors import InvalidInputError
 from ..pipeline import run_scene
 from ..scenes import Occluder
+from ._options import as_typed
 
 log = logging.getLogger("kalmansfm")
 
@@ -64,7 +65,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "--scenario",
         choices=["default", "exit"],
         default="default",
-        help="'exit': the object accelerates out through the left border",
+        help="default: the built-in path; 'exit': the object accelerates out through the left border",
     )
     p.set_defaults(run=run)
 
@@ -76,11 +77,18 @@ def run(args: argparse.Namespace) -> int:
     occluder = None
     if args.occluder is not None:
         track_id, first_frame, n_frames = args.occluder
+        if n_frames < 1 or first_frame < 0 or first_frame + n_frames > args.frames:
+            raise InvalidInputError(
+                f"--occluder TRACK,FIRST,N must hide frames within 0 … {args.frames - 1} (--frames {args.frames}); "
+                f"got FIRST={first_frame}, N={n_frames}"
+            )
         occluder = Occluder(track_id=track_id, first_frame=first_frame, n_frames=n_frames, marker=args.occluder_marker)
     elif args.occluder_marker:
         raise InvalidInputError("--occluder-marker needs --occluder")
-    scene, files = run_scene(args.out, n_frames=args.frames, image_size=(width, height), seed=args.seed,
-                             pixel_noise_std=args.noise, occluder=occluder, scenario=args.scenario)
+    typed = {"n_frames": "--frames", "seed": "--seed", "pixel_noise_std": "--noise", "occluder.track_id": "--occluder TRACK"}
+    with as_typed(typed):
+        scene, files = run_scene(args.out, n_frames=args.frames, image_size=(width, height), seed=args.seed,
+                                 pixel_noise_std=args.noise, occluder=occluder, scenario=args.scenario)
     log.info("wrote %d frames and the ground truth to %s", scene.n_frames, args.out)
     print(f"{args.out}: {len(files)} files ({scene.n_frames} frames {width}x{height}, {len(scene.track_ids)} corners)")
     return 0

@@ -9,6 +9,7 @@ from ..experiments.tables import SIMULATED_TASK
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..report.tables import format_csv, format_text
 from ..structure.landmark import METHODS
+from ._options import as_typed
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -56,7 +57,9 @@ def add_task7_options(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Compute the table and print it to stdout."""
-    table = fusion_table(args.task, method=args.method, seed=args.seed, focal=args.focal, pixel_noise_std=args.pixel_noise)
+    with as_typed({"seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-noise"}):
+        table = fusion_table(args.task, method=args.method, seed=args.seed, focal=args.focal,
+                             pixel_noise_std=args.pixel_noise)
     text = format_csv(table) if args.format == "csv" else format_text(table)
     print(text, end="" if text.endswith("\n") else "\n")
     return 0

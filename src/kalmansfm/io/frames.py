@@ -176,12 +176,31 @@ def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
                 yield frame.to_ndarray(format="gray")
     except (av.error.FFmpegError, ValueError, IndexError) as exc:  # type: ignore[attr-defined]
         if not produced:
-            raise InvalidInputError(f"{path} is not a decodable video or image ({exc})") from None
-        raise InvalidInputError(f"{path}: video decoding failed after frame {produced - 1} ({exc})") from None
+            raise InvalidInputError(f"{path} is not a decodable video or image ({_decoder_reason(exc)})") from None
+        raise InvalidInputError(
+            f"{path}: video decoding failed after frame {produced - 1} ({_decoder_reason(exc)})"
+        ) from None
     finally:
         av.logging.set_level(previous_level)
     if not produced:
         raise InvalidInputError(f"{path} is not a decodable video (no frames)")
+
+
+def _decoder_reason(exc: Exception) -> str:
+    """What the decoder said, in words: FFmpeg's message and its last log line, without the raw error number.
+
+    Examples
+    --------
+    >>> _decoder_reason(ValueError("no video stream"))
+    'no video stream'
+    """
+    message = getattr(exc, "strerror", None)
+    if not isinstance(message, str) or not message:
+        return str(exc)
+    log = getattr(exc, "log", None)
+    detail = log[2].strip() if isinstance(log, tuple) and len(log) == 3 and isinstance(log[2], str) else ""
+    reason = f"FFmpeg: {message[:1].lower()}{message[1:]}"
+    return f"{reason}; {detail}" if detail else reason
 
 
 def _video_count(path: Path) -> int | None:

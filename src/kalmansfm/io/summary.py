@@ -106,6 +106,9 @@ class StructureMetrics:
     weighted : observations weighted by the tracker's posterior variances.
     smoothed : the positions were RTS-smoothed (True, or the lag), or not (False).
     warnings : degeneracies found (not clearly rank 3, little rotation, …).
+    noise_std : σ̂ of the fit, the standard deviation of unit weight behind the points'
+        covariances (pixels when unweighted; with the tracker's weights, 1 when its σ are right).
+    unreliable_points : reconstructed points marked unreliable (too few views or too uncertain).
     """
 
     method: str
@@ -119,6 +122,8 @@ class StructureMetrics:
     weighted: bool
     smoothed: bool | int
     warnings: tuple[str, ...] = ()
+    noise_std: float | None = None
+    unreliable_points: int = 0
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,10 @@
 
     frame,track_id,x,y,vx,vy,std_x,std_y,status
 
-with ``status`` one of ``measured``, ``predicted`` (coasting: x, y are the
-prediction) and ``lost`` (the frame of the loss; the numbers are empty).  Other tools
+with ``status`` one of ``initialising`` (a track's first two frames: the start point and
+the start-up match, with the filter's start-up prior as standard deviations),
+``measured``, ``predicted`` (coasting: x, y are the prediction) and ``lost`` (the frame
+of the loss; the numbers are empty).  Other tools
 give less, and :func:`read_tracks` accepts any CSV with at least ``frame,track_id,x,y``:
 ``vx,vy`` (velocities), ``std_x,std_y`` (position standard deviations) and ``status``
 are optional, every row without a status is a measurement, and lines starting with
@@ -36,7 +38,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..tracking.settings import TrackerSettings
-from ..tracking.tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks, TrackStatus
+from ..tracking.tracks import LOST, MEASUREMENT_CODES, NO_TRACK, POSITION_CODES, Tracks, TrackStatus
 from .npz import load_npz
 from .records import from_json, to_json
 
@@ -192,13 +194,15 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
 
     if "status" in column:
         words = [w.strip() for w in table[:, column["status"]].tolist()]
-        known = {s.label: int(s) for s in (MEASURED, PREDICTED, LOST)}
+        known = {s.label: int(s) for s in TrackStatus if s != NO_TRACK}
         bad = [k for k, w in enumerate(words) if w not in known]
         if bad:
-            raise InvalidInputError(f"{file}: line {lines[bad[0]]}: status must be measured, predicted or lost; got {words[bad[0]]!r}")
+            raise InvalidInputError(
+                f"{file}: line {lines[bad[0]]}: status must be {', '.join(known)}; got {words[bad[0]]!r}"
+            )
         status = np.array([known[w] for w in words], dtype=np.int8)
     else:
-        status = np.full(len(rows), int(MEASURED), dtype=np.int8)
+        status = np.full(len(rows), int(TrackStatus.MEASURED), dtype=np.int8)
     frame = _indices(file, table[:, column["frame"]], lines, "frame")
     track = _indices(file, table[:, column["track_id"]], lines, "track_id")
     positioned = status != LOST
@@ -210,7 +214,7 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
     if "std_x" in column and "std_y" in column:
         std = np.stack([_floats(file, table[positioned, column[c]], lines[positioned], c, finite=False)
                         for c in ("std_x", "std_y")], axis=1)
-        measured_rows = status[positioned] == MEASURED
+        measured_rows = np.isin(status[positioned], MEASUREMENT_CODES)
         bad = measured_rows & ~(std > 0).all(axis=1)
         if bad.any():
             i = int(np.argmax(bad))
@@ -326,9 +330,9 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     bad_code = ~np.isin(status, [int(s) for s in TrackStatus])
     if bad_code.any():
         f, p = np.argwhere(bad_code)[0]
-        raise InvalidInputError(f"{file}: status[{f}, {p}] = {status[f, p]}; expected 0, 1, 2 or 3")
+        raise InvalidInputError(f"{file}: status[{f}, {p}] = {status[f, p]}; expected one of {', '.join(str(int(s)) for s in TrackStatus)}")
     xy = positions.astype(np.float64)
-    bad = ((status == MEASURED) | (status == PREDICTED)) & ~np.isfinite(xy).all(axis=2)
+    bad = np.isin(status, POSITION_CODES) & ~np.isfinite(xy).all(axis=2)
     if bad.any():
         f, p = np.argwhere(bad)[0]
         raise InvalidInputError(f"{file}: positions[{f}, {p}] = {xy[f, p].tolist()} is not finite but status says {TrackStatus(status[f, p]).label}")
@@ -344,7 +348,7 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     scores = _real(file, arrays, "scores", (F, P))
     if covariances is not None:
         variances = np.stack([covariances[..., 0, 0], covariances[..., 1, 1]], axis=-1)
-        bad = (status == MEASURED) & ~(np.isfinite(variances) & (variances > 0)).all(axis=2)
+        bad = np.isin(status, MEASUREMENT_CODES) & ~(np.isfinite(variances) & (variances > 0)).all(axis=2)
         if bad.any():
             f, p = np.argwhere(bad)[0]
             raise InvalidInputError(f"{file}: covariances[{f}, {p}] has a non-positive or non-finite position variance")

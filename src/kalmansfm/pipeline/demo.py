@@ -9,24 +9,24 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field, replace
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError, ReportInterrupted
-from ..io.atomic import atomic_write, check_output_directory, output_directory
+from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames, stage_frames
-from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
-from ..report.drawing import track_colors
+from ..io.intrinsics import intrinsics_from_focal
+from ..io.summary import RunSummary
 from ..report.html import build_report
 from ..scenes import Scene, render_scene
 from ..scenes.files import scene_description, stage_ground_truth
-from ..io.intrinsics import intrinsics_from_focal
-from ..structure import Reconstruction
+from ..structure import PointUncertainty, Reconstruction
 from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
 from ..tracking import TrackerSettings, Tracks, smooth_tracks, track
-from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, tracking_metrics
+from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, structure_uncertainty, tracking_metrics
 from .perspective import perspective_metrics, stage_perspective
 from .stage import Stopwatch, stage_structure, stage_summary, stage_tracking
 
@@ -45,10 +45,13 @@ class DemoRun:
     tracks : the tracker's output (smoothed when the run smoothed).
     reconstruction : the factorization, or None when it was not possible or the camera is
         perspective (the reason is ``summary.structure_error``).
-    perspective : the calibrated reconstruction (``camera="perspective"``), or None.
-    summary : the run's record, as written to ``summary.json``.
+    summary : the run's record, as written to ``summary.json``: its ``total_s`` is the time
+        from the start to the last result file, the time the report shows.
     report : path of ``report.html`` (None when the report was not built).
     scene : the built-in scene when it was the input.
+    uncertainty : each reconstructed point's covariance and status (None without a reconstruction).
+    report_s : seconds spent building ``report.html`` after the results were written (None without it).
+    perspective : the calibrated reconstruction (``camera="perspective"``), or None.
     """
 
     out_dir: Path
@@ -57,6 +60,8 @@ class DemoRun:
     summary: RunSummary
     report: Path | None = None
     scene: Scene | None = field(default=None, repr=False)
+    uncertainty: PointUncertainty | None = field(default=None, repr=False)
+    report_s: float | None = None
     perspective: PerspectiveReconstruction | None = None
 
 
@@ -148,6 +153,7 @@ def run_demo(
             tracks = smooth_tracks(tracks)
 
     reconstruction: Reconstruction | None = None
+    uncertainty: PointUncertainty | None = None
     calibrated: PerspectiveReconstruction | None = None
     structure_error = None
     if camera == "perspective":
@@ -166,6 +172,7 @@ def run_demo(
         with clock.step("factorization"):
             try:
                 reconstruction = factorize_tracks(tracks, weighted=weighted)
+                uncertainty = structure_uncertainty(tracks, reconstruction, weighted=weighted)
             except NotEnoughDataError as exc:
                 structure_error = str(exc)
                 log.warning("factorization skipped: %s", exc)
@@ -180,21 +187,22 @@ def run_demo(
         smoothed=tracks.smoothed,
         tracking=tracking_metrics(tracks),
         structure=None if reconstruction is None else structure_metrics(reconstruction, weighted=weighted,
-                                                                         smoothed=tracks.smoothed),
+                                                                         smoothed=tracks.smoothed,
+                                                                         uncertainty=uncertainty),
         structure_error=structure_error,
         truth=truth,
         scene=None if scene is None else scene.parameters,
         perspective=None if calibrated is None else perspective_metrics(
             calibrated, measured.observations(), measured.frames, source_k, settings_p),
-        warnings=() if calibrated is None else calibrated.warnings,
+        warnings=calibrated.warnings if calibrated is not None else () if uncertainty is None else uncertainty.warnings,
     )
     with output_directory(out_dir) as out:
         with clock.step("writing"):
             names = stage_frames(out, frames, "frames/") if save_frames else []
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
             if reconstruction is not None:
-                names += stage_structure(out, reconstruction, tracks.track_ids, frames=tracks.frames,
-                                         colors=track_colors(tracks.n_tracks))
+                names += stage_structure(out, reconstruction, tracks.track_ids, uncertainty=uncertainty,
+                                         frames=tracks.frames)
             if calibrated is not None:
                 names += stage_perspective(out, calibrated, measured.frames, measured.track_ids,
                                            comment=f"kalmansfm demo of {source}")
@@ -202,22 +210,22 @@ def run_demo(
                 names += stage_ground_truth(out, scene)
         summary = stage_summary(out, summary, clock, names)
 
-    report = None
+    report = report_s = None
     # An earlier run's report describes results that were just replaced: remove it, so that
     # an interrupt while the new one is built leaves no report rather than a wrong one.
     (Path(out_dir) / "report.html").unlink(missing_ok=True)
     if html:
-        with clock.step("report"):
-            try:
-                report = build_report(out_dir, progress=progress)
-            except KeyboardInterrupt:
-                raise ReportInterrupted(
-                    f"the new results are in {out_dir}, without report.html; run 'kalmansfm report {out_dir}'"
-                ) from None
-        # the report's time goes into the one timing record (summary.json is replaced atomically)
-        summary = replace(summary, timings_s=clock.timings, total_s=clock.total())
-        atomic_write(Path(out_dir) / SUMMARY_FILE, lambda p: p.write_text(summary_json(summary), encoding="utf-8"))
-    return DemoRun(Path(out_dir), tracks, reconstruction, summary, report, scene, calibrated)
+        # The report is built from the finished run folder (as 'kalmansfm report' rebuilds it) and
+        # shows the run's one timing record; its own time is not part of it.
+        started = time.perf_counter()
+        try:
+            report = build_report(out_dir, progress=progress)
+        except KeyboardInterrupt:
+            raise ReportInterrupted(
+                f"the new results are in {out_dir}, without report.html; run 'kalmansfm report {out_dir}'"
+            ) from None
+        report_s = time.perf_counter() - started
+    return DemoRun(Path(out_dir), tracks, reconstruction, summary, report, scene, uncertainty, report_s, calibrated)
 
 
 def describe(run: DemoRun) -> str:
@@ -239,7 +247,6 @@ def describe(run: DemoRun) -> str:
         lines.append(f"perspective reconstruction: {p.registered_frames} of {p.frames} frames registered, "
                      f"{p.reconstructed} of {p.points} points; reprojection RMS {p.reprojection_rms_px:.3f} px, "
                      f"pixel noise sigma {p.pixel_std_px:.3f} px")
-        lines.extend(f"warning: {w}" for w in s.warnings)
     elif f is None:
         lines.append(f"structure: not computed ({s.structure_error})")
     else:
@@ -249,7 +256,10 @@ def describe(run: DemoRun) -> str:
             line += f"; shape error {truth.shape_error_pct:.2f} % of the object radius"
         lines.append(line)
         lines.extend(f"warning: {w}" for w in f.warnings)
-    lines.append(f"time: {s.total_s:.1f} s")
+    lines.extend(f"warning: {w}" for w in s.warnings)
+    if s.total_s is not None:
+        extra = f" (and {run.report_s:.2f} s to build the report)" if run.report_s is not None else ""
+        lines.append(f"time: {s.total_s:.2f} s{extra}")
     lines.append(f"report: {run.report}" if run.report is not None else f"results: {run.out_dir}")
     return "\n".join(lines)
 

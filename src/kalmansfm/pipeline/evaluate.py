@@ -6,15 +6,17 @@ holds; nothing here writes files.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..io.ground_truth import GroundTruth
 from ..io.summary import Similarity, StructureMetrics, TrackingMetrics, TrackMetrics, TruthComparison
-from ..structure import Reconstruction, align_similarity, factorize
+from ..structure import PointUncertainty, Reconstruction, align_similarity, factorize, point_uncertainty
 from ..structure.cameras import camera_rotation_matrices, rotation_angle_deg
-from ..tracking.tracks import LOST, MEASURED, PREDICTED, Tracks
+from ..tracking.tracks import LOST, PREDICTED, Tracks
 
-__all__ = ["compare_with_truth", "factorize_tracks", "structure_metrics", "tracking_metrics"]
+__all__ = ["compare_with_truth", "factorize_tracks", "structure_metrics", "structure_uncertainty", "tracking_metrics"]
 
 
 def _optional(values: np.ndarray, present: np.ndarray) -> tuple[float | None, ...]:
@@ -35,10 +37,12 @@ def tracking_metrics(tracks: Tracks) -> TrackingMetrics:
     measured = tracks.measured
     std = tracks.position_std
     mean_std = np.full(tracks.n_tracks, np.nan)
-    if std is not None:
+    filtered = tracks.filtered  # not the start-up prior of the initialising frames
+    if std is not None and filtered.any():
         rms_std = np.sqrt(np.mean(std**2, axis=-1))  # RMS of the x and y standard deviations
-        with np.errstate(invalid="ignore"):
-            mean_std = np.nanmean(np.where(alive, rms_std, np.nan), axis=0) if alive.any() else mean_std
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a track that never got past its start: NaN
+            mean_std = np.nanmean(np.where(filtered, rms_std, np.nan), axis=0)
     lost = tracks.status == LOST
     lost_at = np.where(lost.any(axis=0), np.argmax(lost, axis=0), -1)
     per_track = tuple(
@@ -75,8 +79,23 @@ def factorize_tracks(tracks: Tracks, *, weighted: bool = True, max_iterations: i
     return factorize(tracks.observations(), weights=weights, max_iterations=max_iterations)
 
 
-def structure_metrics(reconstruction: Reconstruction, *, weighted: bool, smoothed: bool | int) -> StructureMetrics:
-    """The figures of a factorization for the run summary."""
+def structure_uncertainty(tracks: Tracks, reconstruction: Reconstruction, *, weighted: bool = True) -> PointUncertainty:
+    """Each point's covariance and status for a reconstruction made by :func:`factorize_tracks` (same ``weighted``)."""
+    weights = tracks.observation_weights() if weighted else None
+    return point_uncertainty(reconstruction, tracks.observations(), weights=weights)
+
+
+def structure_metrics(
+    reconstruction: Reconstruction,
+    *,
+    weighted: bool,
+    smoothed: bool | int,
+    uncertainty: PointUncertainty | None = None,
+) -> StructureMetrics:
+    """The figures of a factorization (and of its points' uncertainty, when given) for the run summary."""
+    unreliable = 0
+    if uncertainty is not None:
+        unreliable = int((np.isfinite(reconstruction.points).all(axis=1) & ~uncertainty.reliable).sum())
     return StructureMetrics(
         method=reconstruction.method,
         frames=int(reconstruction.motion.shape[0]),
@@ -89,6 +108,8 @@ def structure_metrics(reconstruction: Reconstruction, *, weighted: bool, smoothe
         weighted=weighted,
         smoothed=smoothed,
         warnings=tuple(reconstruction.warnings),
+        noise_std=None if uncertainty is None or not np.isfinite(uncertainty.noise_std) else uncertainty.noise_std,
+        unreliable_points=unreliable,
     )
 
 

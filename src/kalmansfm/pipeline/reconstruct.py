@@ -20,10 +20,10 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary
 from ..io.tracks import read_tracks
-from ..structure import Reconstruction
+from ..structure import PointUncertainty, Reconstruction
 from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
 from ..tracking import Tracks, smooth_tracks
-from .evaluate import factorize_tracks, structure_metrics
+from .evaluate import factorize_tracks, structure_metrics, structure_uncertainty
 from .perspective import CAMERA_MODELS, perspective_metrics, resolve_intrinsics, stage_perspective
 from .stage import Stopwatch, stage_structure, stage_summary
 
@@ -38,6 +38,7 @@ class ReconstructRun:
 
     ``reconstruction`` is the affine factorization and ``perspective`` the calibrated
     reconstruction; the one of the camera model written is set (both may be with ``auto``).
+    ``uncertainty`` holds the affine points' covariances and status.
     """
 
     out_dir: Path
@@ -45,6 +46,7 @@ class ReconstructRun:
     reconstruction: Reconstruction | None
     summary: RunSummary
     perspective: PerspectiveReconstruction | None = None
+    uncertainty: PointUncertainty | None = None
 
 
 def read_tracks_for_factorization(path: str | os.PathLike[str], *, smooth: bool | None = None) -> Tracks:
@@ -113,6 +115,10 @@ def run_reconstruct(
     per-point uncertainty, reconstruction.png (camera path, points coloured by uncertainty),
     summary.json.
 
+    Every affine point gets its covariance and status in structure.csv
+    (:func:`~kalmansfm.structure.point_uncertainty`); unreliable points are left out of
+    structure.png and counted in the summary's warnings.
+
     Parameters
     ----------
     tracks_path : ``tracks.npz``, ``tracks.csv`` or a ``frame,track_id,x,y`` CSV.
@@ -153,12 +159,14 @@ def run_reconstruct(
                                        tracks_image_size=tracks.image_size)
     log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
     reconstruction: Reconstruction | None = None
+    uncertainty: PointUncertainty | None = None
     rec: PerspectiveReconstruction | None = None
     settings = perspective or PerspectiveSettings()
     has_weights = weighted and tracks.covariances is not None
     if camera in ("affine", "auto"):
         with clock.step("factorization"):
             reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
+            uncertainty = structure_uncertainty(tracks, reconstruction, weighted=has_weights)
     choice = None
     if camera in ("perspective", "auto"):
         with clock.step("perspective reconstruction"):
@@ -185,11 +193,13 @@ def run_reconstruct(
                                                              settings, camera_choice=choice),
                              warnings=rec.warnings)
     else:
-        assert reconstruction is not None
+        assert reconstruction is not None and uncertainty is not None
         summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
                              smoothed=tracks.smoothed,
-                             structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed),
-                             warnings=() if choice is None else (f"--camera auto chose {choice}",))
+                             structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed,
+                                                         uncertainty=uncertainty),
+                             warnings=(*(() if choice is None else (f"--camera auto chose {choice}",)),
+                                       *uncertainty.warnings))
     with output_directory(out_dir) as out:
         with clock.step("writing"):
             if use_perspective:
@@ -197,7 +207,7 @@ def run_reconstruct(
                                           comment=f"kalmansfm {__version__} from {name}", plot=plot)
             else:
                 names = stage_structure(out, reconstruction, tracks.track_ids,  # type: ignore[arg-type]
-                                        frames=tracks.frames, comment=f"kalmansfm {__version__} from {name}",
+                                        uncertainty=uncertainty, frames=tracks.frames, comment=f"kalmansfm {__version__} from {name}",
                                         plot=plot)
         summary = stage_summary(out, summary, clock, names)
-    return ReconstructRun(Path(out_dir), tracks, reconstruction, summary, rec)
+    return ReconstructRun(Path(out_dir), tracks, reconstruction, summary, rec, uncertainty)

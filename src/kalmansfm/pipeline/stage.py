@@ -20,7 +20,7 @@ from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
 from ..io.tracks import write_tracks_csv, write_tracks_npz
 from ..report.drawing import tracks_gif, tracks_overview_png
 from ..report.figures import covariance_trace_figure, shape_views_figure
-from ..structure import Reconstruction
+from ..structure import PointUncertainty, Reconstruction
 from ..tracking.tracks import Tracks
 
 __all__ = ["Stopwatch", "stage_structure", "stage_summary", "stage_tracking"]
@@ -89,27 +89,32 @@ def stage_structure(
     reconstruction: Reconstruction,
     track_ids: np.ndarray,
     *,
+    uncertainty: PointUncertainty | None = None,
     frames: np.ndarray | None = None,
     comment: str = "kalmansfm reconstruction",
-    colors: list[str] | None = None,
     plot: bool = True,
 ) -> list[str]:
     """Stage the factorization's files: structure.csv, structure.ply, motion.csv (and structure.png).
 
-    ``frames`` are the frame numbers written in motion.csv (default 0, 1, …);
-    ``comment`` goes into the PLY header; ``colors`` are the tracks' colours in the plot.
+    With ``uncertainty`` structure.csv carries each point's covariance, views and status,
+    and structure.png leaves the unreliable points out (and says how many).  ``frames`` are
+    the frame numbers written in motion.csv (default 0, 1, …); ``comment`` goes into the
+    PLY header.
     """
-    out.write_text("structure.csv", structure_csv(track_ids, reconstruction.points))
+    extra = {}
+    if uncertainty is not None:
+        extra = {"covariances": uncertainty.covariances, "views": uncertainty.views, "status": uncertainty.status}
+    out.write_text("structure.csv", structure_csv(track_ids, reconstruction.points, **extra))
     out.write_text("structure.ply", structure_ply(track_ids, reconstruction.points, comment=comment))
     if frames is None:
         frames = np.arange(reconstruction.motion.shape[0])
     out.write_text("motion.csv", motion_csv(frames, reconstruction.motion, reconstruction.translation))
     names = ["structure.csv", "structure.ply", "motion.csv"]
     finite = np.isfinite(reconstruction.points).all(axis=1)
-    if plot and finite.any():
-        chosen = None if colors is None else [c for c, ok in zip(colors, finite) if ok]
-        out.write_bytes("structure.png", shape_views_figure(reconstruction.points[finite], track_ids[finite].tolist(),
-                                                           colors=chosen))
+    shown = finite if uncertainty is None else finite & uncertainty.reliable
+    if plot and shown.any():
+        out.write_bytes("structure.png", shape_views_figure(reconstruction.points[shown], track_ids[shown].tolist(),
+                                                           hidden=int((finite & ~shown).sum())))
         names.append("structure.png")
     return names
 

@@ -118,6 +118,7 @@ JS = r"""
     var start = mul(mul(rotX(-0.35), rotY(0.6)), first);
     var view = start, zoom = 1;
     var showTruth = document.getElementById("view3d-truth");
+    var showUnreliable = document.getElementById("view3d-unreliable");
     var cameraSlider = document.getElementById("view3d-camera");
     var cameraLabel = document.getElementById("view3d-camera-label");
 
@@ -132,8 +133,10 @@ JS = r"""
       var cx = w / 2, cy = h / 2;
       var items = [];
       data.points.forEach(function (p, k) {
+        var weak = data.unreliable && data.unreliable[k];
+        if (weak && !(showUnreliable && showUnreliable.checked)) { return; }
         var q = apply(view, p);
-        items.push({ q: q, kind: "point", color: data.colors[k], label: data.labels[k] });
+        items.push({ q: q, kind: "point", color: data.colors[k], label: data.labels[k], weak: weak });
       });
       if (data.truth && (!showTruth || showTruth.checked)) {
         data.truth.forEach(function (p) { items.push({ q: apply(view, p), kind: "truth" }); });
@@ -160,7 +163,11 @@ JS = r"""
         var x = cx + s * it.q[0], y = cy + s * it.q[1];
         var near = 1 - (it.q[2] / depthSpan);  // bigger when closer to the viewer
         ctx.beginPath();
-        if (it.kind === "point") {
+        if (it.kind === "point" && it.weak) {
+          ctx.strokeStyle = it.color; ctx.lineWidth = 2;
+          ctx.arc(x, y, Math.max(2.5, 5 * near), 0, 2 * Math.PI); ctx.stroke();
+          ctx.fillStyle = "#888"; ctx.font = "11px sans-serif"; ctx.fillText(String(it.label), x + 7, y - 5);
+        } else if (it.kind === "point") {
           ctx.fillStyle = it.color; ctx.strokeStyle = "#222"; ctx.lineWidth = 1;
           ctx.arc(x, y, Math.max(2.5, 5 * near), 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
           ctx.fillStyle = "#333"; ctx.font = "11px sans-serif"; ctx.fillText(String(it.label), x + 7, y - 5);
@@ -206,6 +213,7 @@ JS = r"""
       view = start; zoom = 1; draw();
     });
     if (showTruth) { showTruth.addEventListener("change", draw); }
+    if (showUnreliable) { showUnreliable.addEventListener("change", draw); }
     if (cameraSlider && data.cameras && data.cameras.length) {
       cameraSlider.max = String(data.cameras.length - 1);
       cameraSlider.addEventListener("input", function () {
@@ -217,6 +225,24 @@ JS = r"""
     }
     window.addEventListener("resize", draw);
     draw();
+  }
+
+  // --- long tables: the first rows, and a button for all of them --------------
+  function setupFolding() {
+    Array.prototype.forEach.call(document.querySelectorAll("table[data-fold]"), function (table) {
+      var limit = parseInt(table.getAttribute("data-fold"), 10);
+      var button = table.nextElementSibling && table.nextElementSibling.querySelector(".fold-toggle");
+      var open = false;
+      function apply() {
+        Array.prototype.forEach.call(table.tBodies[0].rows, function (row, k) { row.hidden = !open && k >= limit; });
+        if (button) {
+          button.textContent = open ? "show the first " + limit + " rows" : "show all " + table.tBodies[0].rows.length + " rows";
+        }
+      }
+      table.foldRows = apply;
+      if (button) { button.addEventListener("click", function () { open = !open; apply(); }); }
+      apply();
+    });
   }
 
   // --- sortable tables ----------------------------------------------------
@@ -238,6 +264,7 @@ JS = r"""
           });
           ascending = !ascending;
           rows.forEach(function (r) { body.appendChild(r); });
+          if (table.foldRows) { table.foldRows(); }
         });
       });
     });
@@ -245,6 +272,7 @@ JS = r"""
 
   setupPlayer();
   setupView3d();
+  setupFolding();
   setupSorting();
   status.setAttribute("data-ready", "yes");
 })();

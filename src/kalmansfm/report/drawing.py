@@ -1,9 +1,11 @@
 """Tracks drawn on frames with OpenCV: the report's player and strip, ``tracks.png`` and ``tracks.gif``.
 
 One drawing for every picture of tracks: each track has one colour (:func:`track_colors`,
-by its column), measured points are filled discs, coasting ones rings, lost ones crosses,
-and the ellipse around each point is the tracker's gate, (p - p̂)ᵀ Σ_pos⁻¹ (p - p̂) = c²
-with the gate radius c the tracker actually used.  Functions return images or PNG/GIF
+by its id, the same in every picture, table and plot), measured points are filled discs,
+coasting ones rings, lost ones crosses, initialising ones (a track's first two frames) filled squares, and the ellipse around each
+measured or coasting point is the tracker's gate, (p - p̂)ᵀ Σ_pos⁻¹ (p - p̂) = c² with the
+gate radius c the tracker actually used.  An initialising point has no gate drawn: its
+covariance is the start-up prior Σ0, the same for every new track.  Functions return images or PNG/GIF
 bytes; nothing here writes files.
 """
 
@@ -11,13 +13,14 @@ from __future__ import annotations
 
 import io
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
 
 from ..io.frames import encode_png
 from ..tracking.settings import TrackerSettings
-from ..tracking.tracks import LOST, MEASURED, PREDICTED, Tracks
+from ..tracking.tracks import INITIALISING, LOST, MEASURED, PREDICTED, Tracks, TrackStatus
 
 __all__ = [
     "TRACK_PALETTE",
@@ -42,15 +45,22 @@ TRACK_PALETTE = (
 )
 
 
-def track_colors(count: int) -> list[str]:
-    """``count`` distinct colours as ``#rrggbb`` (Matplotlib's tab10, then tab20b, cycled).
+def track_colors(track_ids: Sequence[int] | np.ndarray) -> list[str]:
+    """The colour of each track, as ``#rrggbb``: ``TRACK_PALETTE[track_id % 30]``.
+
+    A track's colour depends on its id alone, so it is the same in the drawings of the
+    frames, the tables and the plots of the shape, whatever subset or order they show.
 
     Examples
     --------
-    >>> track_colors(2)
-    ['#1f77b4', '#ff7f0e']
+    >>> track_colors([0, 1, 31])
+    ['#1f77b4', '#ff7f0e', '#ff7f0e']
     """
-    return [TRACK_PALETTE[k % len(TRACK_PALETTE)] for k in range(count)]
+    return [TRACK_PALETTE[k] for k in _palette_index(track_ids).tolist()]
+
+
+def _palette_index(track_ids: Any) -> np.ndarray:
+    return np.asarray(track_ids, dtype=np.int64).reshape(-1) % len(TRACK_PALETTE)
 
 
 def _bgr(hex_color: str) -> tuple[int, int, int]:
@@ -138,13 +148,14 @@ def render_tracked_frames(
     Returns
     -------
     list of (h, w, 3) uint8 BGR images
-        Measured points are filled discs, predicted ones rings, lost ones crosses;
-        each track has its own colour (see :func:`track_colors`).
+        Measured points are filled discs, predicted ones rings, lost ones crosses,
+        initialising ones filled squares (no gate); each track has its own colour
+        (see :func:`track_colors`).
     """
     n_tracks = tracks.positions.shape[1]
     # tracks sharing a colour are drawn together: one OpenCV call per colour and kind of mark
-    palette_size = len(TRACK_PALETTE)
-    groups = [(_bgr(TRACK_PALETTE[c]), np.arange(c, n_tracks, palette_size)) for c in range(min(palette_size, n_tracks))]
+    index = _palette_index(tracks.track_ids)
+    groups = [(_bgr(TRACK_PALETTE[c]), np.flatnonzero(index == c)) for c in np.unique(index).tolist()]
     positions = tracks.positions
     blank = _blank_canvas(tracks) if not frames else None
     label_tracks = n_tracks <= 40
@@ -186,6 +197,11 @@ def render_tracked_frames(
                 discs = list(_circle_polygons(current[measured], marker).astype(np.int32))
                 cv2.fillPoly(canvas, discs, color, cv2.LINE_AA, _SHIFT)
                 cv2.polylines(canvas, discs, True, (20, 20, 20), 1, cv2.LINE_AA, _SHIFT)
+            starting = here[status[here] == INITIALISING]
+            if len(starting):
+                squares = list((current[starting][:, None, :] + _UNIT_SQUARE * 0.8 * marker).astype(np.int32))
+                cv2.fillPoly(canvas, squares, color, cv2.LINE_AA, _SHIFT)
+                cv2.polylines(canvas, squares, True, (20, 20, 20), 1, cv2.LINE_AA, _SHIFT)
             predicted = here[status[here] == PREDICTED]
             if len(predicted):
                 rings = list(_circle_polygons(current[predicted], marker).astype(np.int32))
@@ -200,8 +216,7 @@ def render_tracked_frames(
                     at = (int(current[p, 0] + marker) // _ONE + 2, int(current[p, 1] - marker) // _ONE)
                     label = str(int(tracks.track_ids[p]))
                     cv2.putText(canvas, label, at, cv2.FONT_HERSHEY_SIMPLEX, 0.4, color, 1, cv2.LINE_AA)
-        counts = np.bincount(status.clip(0, 3), minlength=4)
-        caption = f"frame {f}  measured {counts[1]}  predicted {counts[2]}  lost {counts[3]}"
+        caption = _caption(f, status)
         cv2.rectangle(canvas, (0, 0), (min(canvas.shape[1], 8 + 7 * len(caption)), 18), (0, 0, 0), -1)
         cv2.putText(canvas, caption, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
         rendered.append(canvas)
@@ -210,6 +225,16 @@ def render_tracked_frames(
 
 _ANGLES = np.linspace(0, 2 * np.pi, 40, endpoint=False)
 _UNIT_CIRCLE = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)  # (40, 2)
+_UNIT_SQUARE = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+
+
+def _caption(frame: int, status: np.ndarray) -> str:
+    """``frame 3  measured 7  predicted 1  lost 0`` (and ``initialising N`` while tracks start)."""
+    counts = np.bincount(status.clip(0, len(TrackStatus) - 1), minlength=len(TrackStatus))
+    caption = f"frame {frame}  measured {counts[MEASURED]}  predicted {counts[PREDICTED]}  lost {counts[LOST]}"
+    if counts[INITIALISING]:
+        caption += f"  initialising {counts[INITIALISING]}"
+    return caption
 
 
 def _circle_polygons(centres: np.ndarray, radius: float) -> np.ndarray:

@@ -1,7 +1,9 @@
 """Plots with Matplotlib: uncertainty and status over time, singular values, shape, camera motion, errors.
 
 Every function returns PNG bytes; nothing here writes files.  Tracks keep the colours
-of :func:`kalmansfm.report.drawing.track_colors`.
+of :func:`kalmansfm.report.drawing.track_colors` (by track id).  Axes holding 3D points get
+robust limits (:func:`robust_half_width`: a few far points do not shrink the rest to a
+blob; the ones outside are counted in the title) and few ticks.
 """
 
 from __future__ import annotations
@@ -15,16 +17,18 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from ..io.structure import CameraMotion  # noqa: E402
 from ..structure.cameras import camera_rotation_matrices  # noqa: E402
-from ..tracking.tracks import Tracks, TrackStatus  # noqa: E402
+from ..tracking.tracks import INITIALISING, Tracks, TrackStatus  # noqa: E402
 from .drawing import track_colors  # noqa: E402
 
 __all__ = [
     "covariance_trace_figure",
     "status_timeline_figure",
     "singular_values_figure",
+    "shape_views",
     "shape_views_figure",
     "camera_rotations",
     "camera_rotation_figure",
@@ -34,7 +38,16 @@ __all__ = [
     "fusion_convergence_figure",
     "uncertainty_colors",
     "camera_path_figure",
+    "robust_half_width",
+    "STATUS_COLORS",
 ]
+
+#: The colour of each track status in the status plot (indexed by the status code).
+STATUS_COLORS = ("#f0f0f0", "#2ca02c", "#ff9f1c", "#d62728", "#9ecae1")
+# Ticks per axis of the shape plots: few enough that labels like -6000 do not run together.
+_SHAPE_TICKS = 4
+# Points farther from the median than this many times the median distance are left outside the axes.
+_STRAY_FACTOR = 4.0
 
 
 def _figure_png(fig: plt.Figure) -> bytes:
@@ -45,7 +58,12 @@ def _figure_png(fig: plt.Figure) -> bytes:
 
 
 def covariance_trace_figure(tracks: Tracks) -> bytes | None:
-    """Mean trace of the state covariance over the tracks with an estimate, per frame."""
+    """Mean trace of the state covariance over the tracks the filter estimates, per frame.
+
+    The initialising frames of each track (its start point and start-up match, whose
+    covariance is the start-up prior Σ0) are not plotted; the frames before the filter
+    runs for any track are shaded and the legend gives trace(Σ0).
+    """
     traces = tracks.covariance_trace()
     if traces is None or not np.isfinite(traces).any():
         return None
@@ -54,8 +72,14 @@ def covariance_trace_figure(tracks: Tracks) -> bytes | None:
         warnings.simplefilter("ignore", RuntimeWarning)  # frames where no track is active give NaN
         mean, low, high = np.nanmean(traces, 1), np.nanmin(traces, 1), np.nanmax(traces, 1)
     fig, ax = plt.subplots(figsize=(7, 3))
+    first = int(np.flatnonzero(np.isfinite(mean))[0])
+    if (tracks.status[:first] == INITIALISING).any():
+        prior = "" if tracks.settings is None else f", trace(Σ0) = {np.trace(tracks.settings.model.P0):g}"
+        ax.axvspan(-0.5, first - 0.5, color="#9ecae1", alpha=0.35, lw=0,
+                   label=f"initialising: start-up prior, not plotted{prior}")
     ax.fill_between(frames, low, high, color="#1f77b4", alpha=0.2, label="min–max over tracks")
     ax.plot(frames, mean, color="#1f77b4", marker=".", label="mean over tracks")
+    ax.set_xlim(-0.5, len(frames) - 0.5)
     ax.set_xlabel("frame")
     ax.set_ylabel("trace of state covariance")
     ax.grid(alpha=0.3)
@@ -64,18 +88,20 @@ def covariance_trace_figure(tracks: Tracks) -> bytes | None:
 
 
 def status_timeline_figure(tracks: Tracks) -> bytes:
-    """Each track's status per frame as a coloured strip (none, measured, predicted, lost)."""
-    palette = np.array(["#f0f0f0", "#2ca02c", "#ff9f1c", "#d62728"])
-    cmap = matplotlib.colors.ListedColormap(palette)
+    """Each track's status per frame as a coloured strip (initialising, measured, predicted, lost)."""
+    cmap = matplotlib.colors.ListedColormap(STATUS_COLORS)
+    top = len(TrackStatus) - 1
     n_frames, n_tracks = tracks.status.shape
     fig, ax = plt.subplots(figsize=(7, min(6.0, 1.0 + 0.22 * n_tracks)))
-    ax.imshow(tracks.status.T.clip(0, 3), cmap=cmap, vmin=-0.5, vmax=3.5, aspect="auto", interpolation="nearest")
+    ax.imshow(tracks.status.T.clip(0, top), cmap=cmap, vmin=-0.5, vmax=top + 0.5, aspect="auto",
+              interpolation="nearest")
     ax.set_xlabel("frame")
     ax.set_ylabel("track id")
     if n_tracks <= 30:
         ax.set_yticks(range(n_tracks), [str(t) for t in tracks.track_ids])
-    handles = [matplotlib.patches.Patch(color=c, label=s.label) for c, s in zip(palette[1:], list(TrackStatus)[1:])]
-    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncol=3, frameon=False)
+    shown = (TrackStatus.INITIALISING, TrackStatus.MEASURED, TrackStatus.PREDICTED, TrackStatus.LOST)
+    handles = [matplotlib.patches.Patch(color=STATUS_COLORS[s], label=s.label) for s in shown]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncol=4, frameon=False)
     return _figure_png(fig)
 
 
@@ -95,25 +121,65 @@ def singular_values_figure(singular_values: Sequence[float]) -> bytes:
     return _figure_png(fig)
 
 
+def robust_half_width(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and half-width of cubic axes that hold the bulk of ``points`` (N, 3).
+
+    The centre is the median.  Each point's reach is its largest per-axis distance from
+    it; the axes hold every point whose reach is at most 4 × the median reach (a Gaussian
+    or box-shaped cloud lies well within that), so that a few points far from the rest stay
+    outside instead of shrinking the others to a blob.
+
+    Examples
+    --------
+    >>> pts = np.vstack([np.random.default_rng(0).uniform(-1, 1, (99, 3)), [[0, 0, 5000.0]]])
+    >>> centre, half = robust_half_width(pts)
+    >>> bool(half < 2.0), bool((np.abs(pts[:99] - centre) <= half).all())
+    (True, True)
+    """
+    pts = np.asarray(points, dtype=float)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if not len(pts):
+        return np.zeros(3), 1.0
+    centre = np.median(pts, axis=0)
+    reach = np.abs(pts - centre).max(axis=1)
+    half = float(reach[reach <= _STRAY_FACTOR * np.median(reach)].max())
+    return centre, max(half * 1.05, 1e-9)
+
+
+def _few_ticks(ax: plt.Axes, axes: str = "xy") -> None:
+    for name in axes:
+        getattr(ax, f"{name}axis").set_major_locator(MaxNLocator(_SHAPE_TICKS, steps=[1, 2, 2.5, 5, 10]))
+
+
 def shape_views_figure(
     points: np.ndarray,
     labels: Sequence[int],
     *,
-    colors: Sequence[str] | None = None,
     truth: np.ndarray | None = None,
+    hidden: int = 0,
 ) -> bytes:
     """The 3D points seen from the front (X–Y), the side (Z–Y), the top (X–Z) and obliquely.
 
     The three orthographic views are exact 2D projections; Y grows downwards as
-    the image rows it comes from.  With ``truth`` (same order as ``points``)
-    both sets are drawn, the truth as rings.
+    the image rows it comes from.  ``labels`` are the points' track ids (they give the
+    colours).  With ``truth`` (same order as ``points``) both sets are drawn, the truth
+    as rings.  The axes hold the bulk of the points (:func:`robust_half_width`); points
+    outside them, and ``hidden`` points left out by the caller (unreliable ones), are
+    counted in the title.
     """
+    return _figure_png(shape_views(points, labels, truth=truth, hidden=hidden))
+
+
+def shape_views(
+    points: np.ndarray, labels: Sequence[int], *, truth: np.ndarray | None = None, hidden: int = 0
+) -> plt.Figure:
+    """The Matplotlib figure of :func:`shape_views_figure` (the caller closes it)."""
     pts = np.asarray(points, dtype=float)
-    colors = list(colors) if colors is not None else track_colors(len(pts))
+    colors = track_colors(labels)
     everything = pts if truth is None else np.vstack([pts, truth])
-    centre = (everything.max(0) + everything.min(0)) / 2
-    half = max(float((everything.max(0) - everything.min(0)).max()) / 2, 1e-9) * 1.12
-    fig = plt.figure(figsize=(13, 3.4))
+    centre, half = robust_half_width(everything)
+    outside = int((np.abs(pts - centre).max(axis=1) > half).sum())
+    fig = plt.figure(figsize=(13, 3.6))
     views = (("front (X–Y)", 0, 1), ("side (Z–Y)", 2, 1), ("top (X–Z)", 0, 2))
     names = "XYZ"
     annotate = len(pts) <= 40
@@ -131,13 +197,18 @@ def shape_views_figure(
         ax.set_aspect("equal")
         ax.set_xlabel(names[a])
         ax.set_ylabel(names[b])
+        _few_ticks(ax)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
         ax.set_title(title, fontsize=10)
     ax = fig.add_subplot(1, 4, 4, projection="3d")
-    ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], c=colors, s=22, depthshade=False)
+    # a 3D axes draws points beyond its limits too: only the ones inside
+    inside = np.abs(pts - centre).max(axis=1) <= half
+    ax.scatter(pts[inside, 0], pts[inside, 1], pts[inside, 2], c=[c for c, ok in zip(colors, inside) if ok], s=22,
+               depthshade=False)
     if truth is not None:
-        ax.scatter(truth[:, 0], truth[:, 1], truth[:, 2], facecolors="none", edgecolors="k", s=60)
+        near = np.abs(truth - centre).max(axis=1) <= half
+        ax.scatter(truth[near, 0], truth[near, 1], truth[near, 2], facecolors="none", edgecolors="k", s=60)
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] + half, centre[1] - half)
     ax.set_zlim(centre[2] - half, centre[2] + half)
@@ -146,12 +217,19 @@ def shape_views_figure(
     ax.set_xlabel("X")
     ax.set_ylabel("Y")
     ax.set_zlabel("Z")
+    _few_ticks(ax, "xyz")
     ax.tick_params(labelsize=6)
     ax.set_title("oblique", fontsize=10)
     if truth is not None:
         fig.axes[0].legend(loc="best", fontsize=7)
+    notes = [f"{len(pts)} points"]
+    if outside:
+        notes.append(f"{outside} outside the axes")
+    if hidden:
+        notes.append(f"{hidden} unreliable not shown")
+    fig.suptitle("; ".join(notes), fontsize=9, y=1.0)
     fig.tight_layout()
-    return _figure_png(fig)
+    return fig
 
 
 def camera_rotations(motion: CameraMotion) -> tuple[np.ndarray, np.ndarray]:
@@ -211,12 +289,12 @@ def track_error_per_frame(positions: np.ndarray, truth: np.ndarray) -> tuple[np.
     return rms, distances
 
 
-def track_error_figure(positions: np.ndarray, truth: np.ndarray) -> bytes:
-    """Tracking error against ground truth per frame: RMS over tracks and each track faintly."""
+def track_error_figure(positions: np.ndarray, truth: np.ndarray, track_ids: Sequence[int]) -> bytes:
+    """Tracking error against ground truth per frame: RMS over tracks and each track (``track_ids``) faintly."""
     rms, distances = track_error_per_frame(positions, truth)
     frames = np.arange(len(rms))
     fig, ax = plt.subplots(figsize=(7, 3))
-    for p, color in enumerate(track_colors(distances.shape[1])):
+    for p, color in enumerate(track_colors(track_ids)):
         ax.plot(frames, distances[:, p], color=color, alpha=0.35, linewidth=0.8)
     ax.plot(frames, rms, color="k", marker=".", linewidth=2, label="RMS over tracks")
     ax.axhline(2.0, color="#d62728", linestyle=":", label="2 px")

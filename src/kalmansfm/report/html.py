@@ -40,6 +40,8 @@ log = logging.getLogger("kalmansfm")
 
 #: Frames shown in the static strip.
 STRIP_FRAMES = 6
+#: Rows a long table shows before "show all".
+TABLE_ROWS = 20
 #: At most this many frames go into the animated player (evenly subsampled beyond) ...
 MAX_PLAYER_FRAMES = 120
 #: ... and fewer if their PNGs would take more than this many bytes.
@@ -97,10 +99,35 @@ class _Html(str):
     """Markup that a table cell inserts as it is (already escaped)."""
 
 
+def _is_empty(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
+
+
 def _table(
-    header: Sequence[str], rows: Iterable[Sequence[Any]], *, sortable: bool = False, numeric: Sequence[bool] = ()
+    header: Sequence[str],
+    rows: Iterable[Sequence[Any]],
+    *,
+    sortable: bool = False,
+    numeric: Sequence[bool] = (),
+    fold: int | None = None,
+    drop_empty: bool = False,
 ) -> str:
-    css = ' class="sortable"' if sortable else ""
+    """An HTML table.
+
+    With ``fold`` a table longer than that shows its first ``fold`` rows and a button for
+    the rest (the page script folds it; without script every row shows).  With
+    ``drop_empty`` a column empty in every row (an em dash throughout) is left out.
+    """
+    rows = [list(row) for row in rows]
+    if drop_empty and rows:
+        keep = [k for k in range(len(header)) if not all(_is_empty(row[k]) for row in rows)]
+        header = [header[k] for k in keep]
+        numeric = [numeric[k] for k in keep if k < len(numeric)]
+        rows = [[row[k] for k in keep] for row in rows]
+    folded = fold is not None and len(rows) > fold
+    classes = [name for name, on in (("sortable", sortable), ("folded", folded)) if on]
+    css = f' class="{" ".join(classes)}"' if classes else ""
+    fold_attr = f' data-fold="{fold}"' if folded else ""
     head = "".join(f"<th>{_esc(h)}</th>" for h in header)
     body = []
     for row in rows:
@@ -111,7 +138,11 @@ def _table(
             css_cell = ' class="num"' if is_num else ""
             cells.append(f"<td{css_cell}{sort_key}>{value if isinstance(value, _Html) else _number(value)}</td>")
         body.append("<tr>" + "".join(cells) + "</tr>")
-    return f"<table{css}><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    table = f"<table{css}{fold_attr}><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    if fold_attr:
+        table += (f'<p class="note"><button type="button" class="fold-toggle">show all {len(rows)} rows</button> '
+                  f"(the first {fold} are shown; sorting sorts all)</p>")
+    return table
 
 
 def _cards(items: Sequence[tuple[str, str]]) -> str:
@@ -162,6 +193,7 @@ def _section_header(run: RunFolder) -> str:
     total = _total_seconds(s)
     if total is not None:
         cards.append(("time taken", f"{total:.2f} s"))
+    warnings = "".join(f'<p class="warn">{_esc(w)}</p>' for w in s.warnings)
     meta = [
         f"input: <strong>{_esc(s.input)}</strong>",
         f"kalmansfm {_esc(s.versions.kalmansfm)}",
@@ -170,7 +202,7 @@ def _section_header(run: RunFolder) -> str:
     command = f'<p class="meta">command: <code>{_esc(s.command)}</code></p>'
     return (
         f'<header><div class="wrap"><h1>kalmansfm report</h1><p class="meta">{" · ".join(meta)}</p>'
-        f"{command}{_cards(cards) if cards else ''}</div></header>"
+        f"{command}{_cards(cards) if cards else ''}{warnings}</div></header>"
     )
 
 
@@ -203,11 +235,11 @@ def _section_parameters(run: RunFolder) -> str | None:
     if rows:
         parts.append("<div><h3>Tracker settings</h3>" + _table(["name", "value"], rows) + "</div>")
     if timings:
-        table_rows: list[Sequence[Any]] = [(step, seconds) for step, seconds in timings]
+        table_rows: list[Sequence[Any]] = [(step, _Html(f"{seconds:.3f}")) for step, seconds in timings]
         total = _total_seconds(run.summary)
         if total is not None:
-            table_rows.append((_Html("<strong>total (the whole run)</strong>"), total))
-        parts.append("<div><h3>Time per step (s)</h3>" + _table(["step", "seconds"], table_rows) + "</div>")
+            table_rows.append((_Html("<strong>total (the whole run)</strong>"), _Html(f"{total:.3f}")))
+        parts.append("<div><h3>Time per step (s)</h3>" + _table(["step", "seconds"], table_rows, numeric=[False, True]) + "</div>")
     parts.append("</div>")
     return "".join(parts)
 
@@ -216,7 +248,9 @@ def _legend(radius: float, known: bool) -> str:
     source = "the tracker's gate radius" if known else "the default gate radius; the tracks carry no settings"
     return (
         '<p class="legend note"><span>● filled: measured</span><span>○ ring: predicted (no measurement)</span>'
-        f"<span>✕: lost</span><span>ellipse: Mahalanobis radius c = {radius:.3g} ({source}) around the position "
+        "<span>✕: lost</span><span>■ square: initialising (a track's first two frames: its start point and "
+        "start-up match; no ellipse, the covariance is the start-up prior)</span>"
+        f"<span>ellipse: Mahalanobis radius c = {radius:.3g} ({source}) around the position "
         "covariance (upper-left 2×2 block of the state covariance)</span>"
         "<span>line: the track's path so far</span></p>"
     )
@@ -297,15 +331,18 @@ def _section_uncertainty(run: RunFolder) -> str | None:
             parts.append(
                 _figure(
                     png,
-                    "Trace of the 4×4 state covariance per frame: mean and range over the tracks with an "
-                    "estimate. It rises while tracks coast on predictions and settles once measured.",
+                    "Trace of the 4×4 state covariance per frame: mean and range over the tracks the filter "
+                    "estimates. A track's first two frames (initialising, shaded while every track starts) carry "
+                    "the start-up prior and are not plotted. The trace rises while tracks coast on predictions "
+                    "and settles once measured.",
                 )
             )
     if run.tracks is not None:
         parts.append(
             _figure(
                 figures.status_timeline_figure(run.tracks),
-                "Status of every track in every frame: measured, predicted (coasting) or lost.",
+                "Status of every track in every frame: initialising (its first two frames), measured, "
+                "predicted (coasting) or lost.",
             )
         )
     return "".join(parts) or None
@@ -333,22 +370,22 @@ def _section_tracks(run: RunFolder) -> str | None:
         parts.append(_table(["", "value"], [r for r in rows if r[1] is not None]))
     if tracking is not None and tracking.per_track:
         ids = [row.track_id for row in tracking.per_track]
-        color_of = dict(zip(ids, _colors_of(run, np.asarray(ids))))
+        colors = track_colors(ids)
         errors = truth.per_track_rms_error_px if truth is not None else ()
-        header = ["track", "measured", "predicted", "lost at frame", "mean std (px)"]
-        if errors:
-            header.append("RMS error (px)")
+        header = ["track", "measured", "predicted", "lost at frame", "mean std (px)", "RMS error (px)"]
         rows = []
         for k, row in enumerate(tracking.per_track):
-            swatch = f'<span class="swatch" style="background:{color_of[row.track_id]}"></span>'
+            swatch = f'<span class="swatch" style="background:{colors[k]}"></span>'
             cells = [_Html(f"{swatch}{row.track_id}"), row.frames_measured, row.frames_predicted, row.lost_at,
-                     row.mean_std_px]
-            if errors:
-                cells.append(errors[k] if k < len(errors) else None)
+                     row.mean_std_px, errors[k] if k < len(errors) else None]
             rows.append(cells)
         parts.append("<h3>Per track</h3>")
-        parts.append('<p class="note">Click a column header to sort. Colours match the drawings.</p>')
-        parts.append(_table(header, rows, sortable=True, numeric=[True] * len(header)))
+        parts.append(
+            '<p class="note">Click a column header to sort. Each track has one colour everywhere: here, in the '
+            "drawings of the frames and in the plots of the shape. Measured frames include the two "
+            "initialising ones; the mean std leaves them out (their covariance is the start-up prior).</p>"
+        )
+        parts.append(_table(header, rows, sortable=True, numeric=[True] * len(header), fold=TABLE_ROWS, drop_empty=True))
     if "tracks.png" in run.figures:
         parts.append(_figure(run.figures["tracks.png"].read_bytes(), "The tracks over the last frame (from the run)."))
     return "".join(parts) or None
@@ -392,21 +429,15 @@ def _section_factorization(run: RunFolder) -> str | None:
     return "".join(parts)
 
 
-def _colors_of(run: RunFolder, track_ids: np.ndarray) -> list[str]:
-    """The colour each track has in the drawings of the sequence (by its column in tracks.npz)."""
-    if run.tracks is None:
-        return track_colors(len(track_ids))
-    palette = track_colors(len(run.tracks.track_ids))
-    column_of = {int(t): k for k, t in enumerate(run.tracks.track_ids)}
-    grey = "#7f7f7f"
-    return [palette[column_of[int(t)]] if int(t) in column_of else grey for t in track_ids]
-
-
 def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray | None) -> dict[str, Any]:
-    centre = structure.points.mean(axis=0)
+    reliable = structure.reliable
+    core = structure.points[reliable] if reliable.any() else structure.points
+    centre, half = figures.robust_half_width(core)
     points = structure.points - centre
-    radius = float(np.linalg.norm(points, axis=1).max()) or 1.0
-    colors = _colors_of(run, structure.track_ids)
+    # the view's scale: the farthest of the points inside the robust axes (a stray point does not shrink the rest)
+    inside = np.abs(core - centre).max(axis=1) <= half
+    radius = float(np.linalg.norm(core[inside] - centre, axis=1).max()) if inside.any() else half
+    colors = track_colors(structure.track_ids)
     if run.point_covariances is not None:
         # points coloured by their uncertainty (viridis, log scale), matched to structure.csv by track id
         ids, cov = run.point_covariances
@@ -418,7 +449,8 @@ def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray
         "points": np.round(points, 6).tolist(),
         "labels": structure.track_ids.tolist(),
         "colors": colors,
-        "radius": radius,
+        "unreliable": (~reliable).tolist(),
+        "radius": radius or 1.0,
         "truth": None if truth_here is None else np.round(truth_here - centre, 6).tolist(),
         "cameras": [],
         "camera_frames": [],
@@ -476,11 +508,25 @@ def _section_shape(run: RunFolder) -> str | None:
     squares = ("the recovered camera centres (the camera path); points coloured by their uncertainty, dark = "
                "certain, yellow = uncertain" if run.cameras is not None
                else "the direction each camera looked from (the recovered camera path)")
+    unreliable = int((~structure.reliable).sum())
+    unreliable_toggle = ""
+    if unreliable:
+        unreliable_toggle = (
+            f'<label><input id="view3d-unreliable" type="checkbox"> the {unreliable} unreliable points '
+            "(hollow)</label>"
+        )
+        views = structure.views[~structure.reliable]  # type: ignore[index]
+        parts.append(
+            f'<p class="warn">{unreliable} of {len(structure.track_ids)} points are unreliable (marked in '
+            f"structure.csv; seen in {_number(int(views.min()))}–{_number(int(views.max()))} frames): their depth "
+            "is barely constrained by the frames that saw them. They are left out of the plots; the box below "
+            "shows them in the interactive view.</p>"
+        )
     parts.append(
         '<h3 id="interactive-3d">Interactive view</h3>'
         f'<p class="note">Drag to rotate, wheel to zoom. Purple squares: {squares}.</p>'
         f'<div class="controls"><button id="view3d-reset" type="button">reset</button>{truth_toggle}'
-        f"{camera_slider}</div>"
+        f"{unreliable_toggle}{camera_slider}</div>"
         '<canvas id="view3d" class="view3d" width="720" height="440"></canvas>'
         f'<script type="application/json" id="shape-data">{payload}</script>'
         "<noscript><p class='note'>The interactive view needs JavaScript; the fixed views follow.</p></noscript>"
@@ -488,11 +534,12 @@ def _section_shape(run: RunFolder) -> str | None:
     if "structure.png" in run.figures:
         parts.append(_figure(run.figures["structure.png"].read_bytes(), "Recovered structure (from the run)."))
     else:
+        shown = structure.reliable
         parts.append(
             _figure(
-                figures.shape_views_figure(structure.points, structure.track_ids.tolist(),
-                                           colors=_colors_of(run, structure.track_ids)),
-                f"The {len(structure.points)} recovered 3D points from four viewpoints (Y down, as in the image).",
+                figures.shape_views_figure(structure.points[shown], structure.track_ids[shown].tolist(),
+                                           hidden=unreliable),
+                f"The {int(shown.sum())} reliable recovered 3D points from four viewpoints (Y down, as in the image).",
             )
         )
     return "".join(parts)
@@ -525,7 +572,7 @@ def _section_ground_truth(run: RunFolder) -> str | None:
         parts.append("<h3>Tracking error</h3>" + _table(["", "value"], facts))
         parts.append(
             _figure(
-                figures.track_error_figure(run.tracks.positions, run.ground_truth_tracks),
+                figures.track_error_figure(run.tracks.positions, run.ground_truth_tracks, run.tracks.track_ids),
                 "Distance between each track's estimate and the true image position per frame (faint lines, "
                 "one per track) and their RMS (black); frames where the point is not visible are left out.",
             )
@@ -536,6 +583,8 @@ def _section_ground_truth(run: RunFolder) -> str | None:
         alignment = truth.alignment
         aligned = alignment.apply(recovered)  # type: ignore[union-attr]
         facts = [("points compared", len(ids)), ("shape error (% of the object's RMS radius)", truth.shape_error_pct)]
+        # the unreliable points are left out of the plot, as everywhere
+        shown = np.isin(ids, run.structure.track_ids[run.structure.reliable])  # type: ignore[union-attr]
         parts.append("<h3>3D shape</h3>" + _table(["", "value"], facts))
         if alignment.mirrored:  # type: ignore[union-attr]
             parts.append(
@@ -544,7 +593,8 @@ def _section_ground_truth(run: RunFolder) -> str | None:
             )
         parts.append(
             _figure(
-                figures.shape_views_figure(aligned, ids.tolist(), colors=_colors_of(run, ids), truth=true_points),
+                figures.shape_views_figure(aligned[shown], ids[shown].tolist(), truth=true_points[shown],
+                                           hidden=int((~shown).sum())),
                 "Recovered points after the best similarity transform onto the ground truth (dots) and the "
                 "ground truth (rings).",
             )
@@ -741,7 +791,7 @@ def build_report(
         raise InvalidInputError(f"out_name must be a plain file name; got {out_name!r}")
     run = load_run(run_dir)
     if out_name == SUMMARY_FILE or out_name in run.summary.files:
-        raise InvalidInputError(f"--name {out_name} would overwrite the run's own {out_name}; choose another name")
+        raise InvalidInputError(f"out_name {out_name} would overwrite the run's own {out_name}; choose another name")
     document = render_report(run, progress=progress)
     with output_directory(run.path) as out:
         out.write_text(out_name, document)

@@ -12,6 +12,7 @@ from .perspective import PerspectiveReconstruction, PerspectiveSettings, reconst
 from .pinhole import CameraSet, PointStatus, decompose_projection, project_points, triangulate_points
 from .point_fusion import FusedStructure, FusionHistory, FusionSettings, fuse, pair_triangulations
 from .triangulation import TriangulationResult, triangulate_midpoint
+from .uncertainty import PointUncertainty, point_uncertainty
 
 __all__ = [
     "Alignment",
@@ -23,6 +24,7 @@ __all__ = [
     "LandmarkEstimates",
     "PerspectiveReconstruction",
     "PerspectiveSettings",
+    "PointUncertainty",
     "Reconstruction",
     "TriangulationResult",
     "TruncatedSVD",
@@ -34,6 +36,7 @@ __all__ = [
     "fuse",
     "metric_upgrade",
     "pair_triangulations",
+    "point_uncertainty",
     "project_points",
     "reconstruct_perspective",
     "subspace_angle",

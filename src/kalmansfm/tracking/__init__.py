@@ -5,10 +5,11 @@ from .matching import MatchResult, match_templates
 from .settings import DEFAULT_GATE_PROBABILITY, TrackerSettings, gate_radius_for_probability
 from .smoothing import smooth_tracks
 from .tracker import FrameEstimate, Tracker, track
-from .tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks, TrackStatus
+from .tracks import INITIALISING, LOST, MEASURED, NO_TRACK, PREDICTED, Tracks, TrackStatus
 
 __all__ = [
     "DEFAULT_GATE_PROBABILITY",
+    "INITIALISING",
     "LOST",
     "MEASURED",
     "NO_TRACK",

@@ -4,10 +4,10 @@ The tracker runs its Kalman filter online and records, per frame and track, the
 posterior state s_t and covariance Σ_t (the prediction while the track coasts).
 Every track lives on its own interval of frames:
 
-* frame ``s`` (its first frame): the given or detected position, velocity 0 —
-  not a filter estimate;
-* frame ``s + 1``: the filter starts there with s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀]
-  and Σ0;
+* frame ``s`` (its first frame, status initialising): the given or detected
+  position, velocity 0 — not a filter estimate;
+* frame ``s + 1`` (initialising, or predicted when the start-up search failed): the
+  filter starts there with s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀] and Σ0;
 * frames ``s + 2 … e``: predict s⁻_t = F s_{t-1}, Σ⁻_t = F Σ_{t-1} Fᵀ + Q, then
   update (measured) or not (coasting: s_t = s⁻_t, Σ_t = Σ⁻_t);
 * after ``e`` the track is lost (NaN) or the sequence ends.
@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..estimation.models import LinearGaussianModel, constant_velocity_2d
 from ..estimation.smoothing import FilterRun, smooth
-from .tracks import MEASURED, PREDICTED, Tracks
+from .tracks import PREDICTED, Tracks
 
 __all__ = ["smooth_tracks"]
 
@@ -45,7 +45,7 @@ _CHUNK_ELEMENTS = 1 << 20
 
 def _chains(tracks: Tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per track: first and last frame of its filter chain, and whether it has a step to smooth (>= 2 frames)."""
-    alive = (tracks.status == MEASURED) | (tracks.status == PREDICTED)
+    alive = tracks.alive
     F = tracks.n_frames
     any_alive = alive.any(axis=0)
     first = np.where(any_alive, np.argmax(tracks.status != 0, axis=0), F)
@@ -60,8 +60,8 @@ def _chains(tracks: Tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         f, p = np.argwhere(gap)[0]
         raise InvalidInputError(
             f"track id {tracks.track_ids[p]} has status {tracks.status[f, p]} in frame {f}, between its first "
-            f"frame {first[p]} and its last frame {last[p]} with a position; a track must be measured or "
-            f"predicted (status 1 or 2) on every frame of its life"
+            f"frame {first[p]} and its last frame {last[p]} with a position; a track must be initialising, "
+            f"measured or predicted (status 4, 1 or 2) on every frame of its life"
         )
     return start, last, has_chain
 

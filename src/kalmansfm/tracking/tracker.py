@@ -70,7 +70,7 @@ from .detect import detect_corners
 from .matching import PreparedFrame, TemplateSpectra, match_templates, prepare_frame, refine_translation, sample_patches
 from .settings import TrackerSettings
 from .smoothing import smooth_tracks
-from .tracks import LOST, MEASURED, PREDICTED, Tracks
+from .tracks import INITIALISING, LOST, MEASURED, PREDICTED, Tracks
 
 __all__ = ["FrameEstimate", "Tracker", "track"]
 
@@ -93,7 +93,7 @@ class FrameEstimate:
     frame_index : index of the frame just processed.
     track_ids : (k,) ids of the tracks present in this frame (including the ones lost in it).
     positions : (k, 2) posterior (or predicted) positions, NaN for tracks lost in this frame.
-    status : (k,) int8 codes (1 measured, 2 predicted, 3 lost).
+    status : (k,) int8 codes (1 measured, 2 predicted, 3 lost, 4 initialising: the track's first two frames).
     """
 
     frame_index: int
@@ -268,7 +268,7 @@ class Tracker:
             ids=self._pending_ids.copy(),
             states=states,
             covariances=np.broadcast_to(self.model.P0, (n, 4, 4)).copy(),
-            status=np.full(n, MEASURED, np.int8),
+            status=np.full(n, INITIALISING, np.int8),
             scores=np.zeros(n),
         )
 
@@ -310,7 +310,8 @@ class Tracker:
         # s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀]
         states = np.concatenate([second, second - self._pending_positions], axis=1)
         templates = np.where(found[:, None, None], sample_patches(frame, second, self.window), self._pending_templates)
-        status = np.where(found, MEASURED, PREDICTED).astype(np.int8)
+        # Found: still initialising (a measurement, with the start-up prior Σ0 as covariance).
+        status = np.where(found, INITIALISING, PREDICTED).astype(np.int8)
         covariances = np.broadcast_to(self.model.P0, (n, 4, 4)).copy()
         self._add_to_filter(self._pending_ids, states, covariances, templates, self._pending_templates, (~found).astype(np.int64))
         record = _FrameRecord(self._pending_ids.copy(), states, covariances, status, match.dissimilarity)

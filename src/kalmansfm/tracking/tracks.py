@@ -9,24 +9,36 @@ frame; files store its integer value (``tracks.npz``) or its lower-case name (``
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from enum import IntEnum
 from typing import Any
 
 import numpy as np
 
+from .._validation import LabelledEnum
 from ..errors import InvalidInputError
 from .settings import TrackerSettings
 
-__all__ = ["TrackStatus", "Tracks", "NO_TRACK", "MEASURED", "PREDICTED", "LOST"]
+__all__ = [
+    "TrackStatus",
+    "Tracks",
+    "NO_TRACK",
+    "MEASURED",
+    "PREDICTED",
+    "LOST",
+    "INITIALISING",
+    "MEASUREMENT_CODES",
+    "POSITION_CODES",
+]
 
 
-class TrackStatus(IntEnum):
+class TrackStatus(LabelledEnum):
     """Status of a track in one frame.
 
     Examples
     --------
     >>> TrackStatus(1).label, TrackStatus.from_label("predicted").value
     ('measured', 2)
+    >>> TrackStatus.INITIALISING.label, int(TrackStatus.INITIALISING)
+    ('initialising', 4)
     """
 
     #: the track does not exist in this frame (not started yet, or lost earlier)
@@ -37,22 +49,18 @@ class TrackStatus(IntEnum):
     PREDICTED = 2
     #: the frame in which the track was declared lost (no position); NONE afterwards
     LOST = 3
-
-    @property
-    def label(self) -> str:
-        """The word files use for this status (``none``, ``measured``, ``predicted``, ``lost``)."""
-        return self.name.lower()
-
-    @classmethod
-    def from_label(cls, label: str) -> TrackStatus:
-        """The status named ``label`` (as :attr:`label` writes it); raises ``KeyError`` otherwise."""
-        if label != label.lower():
-            raise KeyError(label)
-        return cls[label.upper()]
+    #: the track's first two frames, before the filter runs: the given or detected point, then
+    #: the start-up template match.  The position is a measurement; the covariance is the
+    #: start-up prior Σ0 of the motion model, not a filtered estimate.
+    INITIALISING = 4
 
 
 # Short names for array comparisons (``tracks.status == MEASURED``).
-NO_TRACK, MEASURED, PREDICTED, LOST = TrackStatus
+NO_TRACK, MEASURED, PREDICTED, LOST, INITIALISING = TrackStatus
+#: The codes whose position is a measurement (``np.isin(status, MEASUREMENT_CODES)``).
+MEASUREMENT_CODES = (MEASURED, INITIALISING)
+#: The codes with a position: a measurement or a coasting prediction.
+POSITION_CODES = (INITIALISING, MEASURED, PREDICTED)
 
 
 def _as_array(value: Any, dtype: type) -> np.ndarray | None:
@@ -159,13 +167,18 @@ class Tracks:
 
     @property
     def measured(self) -> np.ndarray:
-        """(F, P) True where the track was measured."""
-        return self.status == MEASURED
+        """(F, P) True where the position is a measurement: status measured, or initialising (the track's start)."""
+        return np.isin(self.status, MEASUREMENT_CODES)
+
+    @property
+    def filtered(self) -> np.ndarray:
+        """(F, P) True where the filter has an estimate: measured or coasting, not initialising."""
+        return (self.status == MEASURED) | (self.status == PREDICTED)
 
     @property
     def alive(self) -> np.ndarray:
-        """(F, P) True where the track has a position (measured or coasting)."""
-        return (self.status == MEASURED) | (self.status == PREDICTED)
+        """(F, P) True where the track has a position (initialising, measured or coasting)."""
+        return np.isin(self.status, POSITION_CODES)
 
     @property
     def position_std(self) -> np.ndarray | None:
@@ -188,17 +201,21 @@ class Tracks:
         return np.nan_to_num(weights, nan=0.0, posinf=0.0)
 
     def covariance_trace(self) -> np.ndarray | None:
-        """(F, P) trace of each state covariance where the track is alive (NaN elsewhere), or None."""
+        """(F, P) trace of each state covariance where the filter has an estimate, or None without covariances.
+
+        NaN where the track has no position and where it is initialising: the covariance
+        there is the start-up prior Σ0, not an estimate of the filter.
+        """
         if self.covariances is None:
             return None
-        return np.where(self.alive, np.trace(self.covariances, axis1=-2, axis2=-1), np.nan)
+        return np.where(self.filtered, np.trace(self.covariances, axis1=-2, axis2=-1), np.nan)
 
     def mean_covariance_trace(self) -> np.ndarray:
-        """(F,) mean trace of the covariance over the tracks alive in each frame (the report's Figure 1)."""
+        """(F,) mean trace of the covariance over the tracks the filter estimates in each frame (the report's Figure 1)."""
         trace = self.covariance_trace()
         if trace is None:
             return np.full(self.n_frames, np.nan)
-        counts = np.sum(self.alive, axis=1)
+        counts = np.sum(self.filtered, axis=1)
         return np.where(counts > 0, np.nansum(trace, axis=1) / np.maximum(counts, 1), np.nan)
 
     def survival(self) -> np.ndarray:

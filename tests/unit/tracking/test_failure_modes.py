@@ -14,7 +14,7 @@ import pytest
 from kalmansfm.scenes import Occluder, render_scene
 from kalmansfm.tracking.tracker import track
 
-LOST, MEASURED, NO_TRACK = 3, 1, 0
+LOST, MEASURED, NO_TRACK, INITIALISING = 3, 1, 0, 4
 SEEDS = range(6)
 
 
@@ -38,7 +38,7 @@ def test_occlusion_longer_than_max_misses_ends_the_track_without_a_jump(seed):
     errors = np.linalg.norm(tracks.positions[:, c] - truth, axis=1)
 
     # measured to the last visible frame, on its own marker
-    assert (status[:first] == MEASURED).all()
+    assert (status[:2] == INITIALISING).all() and (status[2:first] == MEASURED).all()
     assert errors[:first].max() < 1.0
     # coasts max_misses frames under the card, then lost in the next one, then no track
     assert (status[first : first + max_misses] != MEASURED).all()
@@ -50,7 +50,7 @@ def test_occlusion_longer_than_max_misses_ends_the_track_without_a_jump(seed):
     always_visible = scene.track_ids[scene.visible.all(axis=0)]
     for other in always_visible:
         k = _column(tracks.track_ids, int(other))
-        measured = tracks.status[:, k] == MEASURED
+        measured = tracks.measured[:, k]
         own = scene.positions[:, _column(scene.track_ids, int(other))]
         assert np.linalg.norm(tracks.positions[measured, k] - own[measured], axis=1).max() < 3.0
 

@@ -44,7 +44,7 @@ def card_cover(scene, truth):
 
 def assert_no_silent_swap(scene, tracks, truth, visible):
     error = np.linalg.norm(tracks.positions - truth, axis=2)
-    measured = tracks.status == MEASURED
+    measured = tracks.measured
     touched, covered = card_cover(scene, truth)
     # Visible: on its own point.
     assert (error[measured & visible] <= 3.0).all(), np.round(error[measured & visible].max(), 2)
@@ -140,7 +140,7 @@ def test_an_implausible_jump_is_refused_even_when_the_template_matches():
     jumped[6][y - 7 : y + 8, x + 1 : x + 16] = patch  # the same patch 8 px to the right
     jumped[6][y - 7 : y + 8, x - 7 : x + 1] = 128.0  # the original half erased
     plain = track(frames, p0)
-    assert (plain.status == MEASURED).all()
+    assert plain.measured.all()
     tracks = track(jumped, p0)
     # Refused in frame 6; re-acquired (candidate) in frame 7 and confirmed in frame 8.
     assert tracks.status[6:, 0].tolist() == [PREDICTED, PREDICTED] + [MEASURED] * 2

@@ -1,0 +1,82 @@
+"""What every subcommand shares about its options: how ``--help`` shows them, and errors in their names.
+
+:class:`HelpFormatter` adds ``(default: …)`` only where it tells the user something: not to
+a required option, an option without a default, a plain on/off flag, or a help text that
+already names its default; a pair of numbers prints as ``WxH``.
+
+:func:`as_typed` lets a subcommand call the library and still name, in any error, the
+option the user typed (``--frames``) instead of the library's argument (``n_frames``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+
+from ..errors import KalmanSfmError
+
+__all__ = ["HelpFormatter", "as_typed"]
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """``--help`` with each useful default once.
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser(prog="x", formatter_class=HelpFormatter)
+    >>> _ = parser.add_argument("--out", required=True, help="output folder")
+    >>> _ = parser.add_argument("--size", type=str, default=(320, 240), help="image size")
+    >>> _ = parser.add_argument("--workers", type=int, default=None, help="workers (default: CPU cores)")
+    >>> _ = parser.add_argument("--open", action="store_true", help="open it")
+    >>> text = parser.format_help()
+    >>> "output folder\\n" in text, "(default: 320x240)" in text, text.count("default:"), "%" in text
+    (True, True, 2, False)
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        silent = (
+            action.required
+            or default is None
+            or default is argparse.SUPPRESS
+            or isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction))
+            or "default" in text.lower()
+            or not action.option_strings
+        )
+        if silent:
+            return text
+        if isinstance(default, tuple) and len(default) == 2:
+            shown = "x".join(str(v) for v in default)
+        else:
+            shown = str(default)
+        # argparse %-formats a help text: a literal % in the default must be doubled
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+@contextmanager
+def as_typed(names: Mapping[str, str]) -> Iterator[None]:
+    """Re-raise a library error that starts with an argument's name with the option's name instead.
+
+    ``names`` maps the library's argument names to the options the user typed, e.g.
+    ``{"n_frames": "--frames"}``; the error keeps its class and the rest of its message.
+
+    Examples
+    --------
+    >>> from kalmansfm.errors import InvalidInputError
+    >>> try:
+    ...     with as_typed({"n_frames": "--frames"}):
+    ...         raise InvalidInputError("n_frames must be an integer >= 3; got 0")
+    ... except InvalidInputError as exc:
+    ...     print(exc)
+    --frames must be an integer >= 3; got 0
+    """
+    try:
+        yield
+    except KalmanSfmError as exc:
+        message = str(exc)
+        for name, option in sorted(names.items(), key=lambda item: -len(item[0])):
+            if message.startswith(name) and message[len(name):len(name) + 1] in (" ", ":", ";", ","):
+                raise type(exc)(option + message[len(name):]) from None
+        raise
