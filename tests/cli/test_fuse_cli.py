@@ -9,8 +9,8 @@ import pytest
 from kalmansfm.cli.main import main
 from kalmansfm.io import load_run, read_summary
 from kalmansfm.io.cameras import MATRIX_COLUMNS, cameras_csv
-from kalmansfm.io.fusion import FUSED_STRUCTURE_COLUMNS, HISTORY_COLUMNS, REJECTED_COLUMNS
-from kalmansfm.io.structure import read_points_table
+from kalmansfm.io.fusion import HISTORY_COLUMNS, REJECTED_COLUMNS
+from kalmansfm.io.structure import STRUCTURE_COLUMNS, read_points_table
 from kalmansfm.report import build_report
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure.pinhole import CameraSet
@@ -55,7 +55,7 @@ def test_fuse_writes_the_run_folder_and_its_report(scene_files, capsys):
     assert sorted(p.name for p in run.iterdir()) == [
         "fusion.png", "history.csv", "rejected.csv", "structure.csv", "structure.ply", "summary.json"]
     lines = (run / "structure.csv").read_text().splitlines()
-    assert lines[0] == ",".join(FUSED_STRUCTURE_COLUMNS) and len(lines) == 61
+    assert lines[0] == ",".join(STRUCTURE_COLUMNS) and len(lines) == 61
     assert (run / "history.csv").read_text().splitlines()[0] == ",".join(HISTORY_COLUMNS)
     rejected = (run / "rejected.csv").read_text().splitlines()
     assert rejected[0] == ",".join(REJECTED_COLUMNS) and len(rejected) - 1 >= 0.8 * s.outliers.sum()
@@ -104,7 +104,7 @@ def test_points_behind_every_camera_get_a_status(tmp_path, capsys):
     (tmp_path / "tracks.csv").write_text(tracks_text(obs, s.cameras.frames))
     assert main(fuse_args(tmp_path, "--pixel-std", "0.3")) == 0
     last = (tmp_path / "run" / "structure.csv").read_text().splitlines()[-1].split(",")
-    assert last[0] == "20" and last[-1] == "behind_camera" and last[1] == "nan"
+    assert last[0] == "20" and last[-1] == "behind_camera" and last[1] == ""  # no value: an empty cell
 
 
 def bad_cameras(tmp_path, text):

@@ -20,13 +20,16 @@ def test_reconstruct_writes_all_files(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == [
         "motion.csv", "structure.csv", "structure.ply", "structure.png", "summary.json"]
     header = (out / "structure.csv").read_text().splitlines()[0]
-    assert header == "track_id,X,Y,Z,cov_XX,cov_XY,cov_XZ,cov_YY,cov_YZ,cov_ZZ,views,status"
-    structure = np.loadtxt(out / "structure.csv", delimiter=",", skiprows=1, usecols=range(11))
-    assert structure.shape == (9, 11) and structure[:, 0].tolist() == list(range(1, 10))
+    assert header == "track_id,X,Y,Z,cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz,views,reprojection_rms,status"
+    structure = np.loadtxt(out / "structure.csv", delimiter=",", skiprows=1, usecols=range(12))
+    assert structure.shape == (9, 12) and structure[:, 0].tolist() == list(range(1, 10))
     assert (structure[:, 10] == 30).all()  # every point seen in all 30 frames
+    # seen equally often, the points' residual RMS combine into the run's rank-3 residual
+    summary = read_summary(out / "summary.json")
+    assert np.sqrt(np.mean(structure[:, 11] ** 2)) == pytest.approx(summary.structure.residual_rms_px, rel=1e-9)
     motion = np.loadtxt(out / "motion.csv", delimiter=",", skiprows=1)
     assert motion.shape == (30, 9) and motion[0, 0] == 1
-    assert read_summary(out / "summary.json").structure.residual_rms_px == pytest.approx(2.88, abs=0.01)
+    assert summary.structure.residual_rms_px == pytest.approx(2.88, abs=0.01)
     assert (out / "structure.png").read_bytes()[:4] == b"\x89PNG"
 
 

@@ -5,9 +5,9 @@ import pytest
 
 from kalmansfm.cli.main import main
 from kalmansfm.io import load_run, read_summary
-from kalmansfm.io.fusion import FUSED_STRUCTURE_COLUMNS
 from kalmansfm.io.intrinsics import intrinsics_csv
-from kalmansfm.io.perspective import CAMERA_POSE_COLUMNS, read_perspective_cameras, read_point_covariances
+from kalmansfm.io.perspective import CAMERA_POSE_COLUMNS, read_perspective_cameras
+from kalmansfm.io.structure import STRUCTURE_COLUMNS
 from kalmansfm.report import build_report
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.alignment import align_similarity
@@ -50,7 +50,7 @@ def test_perspective_run_folder_files_report_and_accuracy(files, scene, capsys):
     run = files / "run"
     assert sorted(p.name for p in run.iterdir()) == [
         "cameras.csv", "reconstruction.png", "structure.csv", "structure.ply", "summary.json"]
-    assert (run / "structure.csv").read_text().splitlines()[0] == ",".join(FUSED_STRUCTURE_COLUMNS)
+    assert (run / "structure.csv").read_text().splitlines()[0] == ",".join(STRUCTURE_COLUMNS)
     assert (run / "cameras.csv").read_text().splitlines()[0] == ",".join(CAMERA_POSE_COLUMNS)
     assert "free-network gauge" in (run / "structure.ply").read_text().splitlines()[2]
     summary = read_summary(run / "summary.json")
@@ -58,12 +58,12 @@ def test_perspective_run_folder_files_report_and_accuracy(files, scene, capsys):
     assert p.registered_frames == 7 and p.reconstructed >= 140 and p.pixel_std_px == pytest.approx(0.5, rel=0.1)
     assert p.initial_pair[0] >= 20  # frame numbers of the file, not indices
     # the files hold the reconstruction: points match the truth after alignment, cameras by frame number
-    ids, cov = read_point_covariances(run / "structure.csv")
     cams = read_perspective_cameras(run / "cameras.csv")
     assert cams.frames.tolist() == list(range(20, 27))
     table = load_run(run)
     al = align_similarity(table.structure.points, scene.points[table.structure.track_ids - 500])
-    assert al.rms < 0.05 and cov.shape == (len(ids), 3, 3)
+    cov = table.structure.covariances
+    assert al.rms < 0.05 and cov.shape == (len(table.structure.track_ids), 3, 3) and np.isfinite(cov).all()
     html = build_report(run).read_text()
     assert "Perspective reconstruction" in html and "camera_centres" in html
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..structure.pinhole import CameraSet
-from .ground_truth import _number
+from ._csv import number
 from .tracks import _floats, _indices
 
 __all__ = ["MATRIX_COLUMNS", "POSE_COLUMNS", "CameraObservations", "cameras_csv", "match_cameras", "read_cameras"]
@@ -141,7 +141,7 @@ def cameras_csv(cameras: CameraSet) -> str:
     """
     lines = [",".join(MATRIX_COLUMNS)]
     for frame, P in zip(cameras.frames, cameras.matrices):
-        lines.append(",".join([str(int(frame))] + [_number(x) for x in P.ravel()]))
+        lines.append(",".join([str(int(frame))] + [number(x) for x in P.ravel()]))
     return "\n".join(lines) + "\n"
 
 

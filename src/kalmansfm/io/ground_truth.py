@@ -23,13 +23,14 @@ from __future__ import annotations
 
 import csv
 import os
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InvalidInputError
+from ._csv import csv_text, number
+from .structure import structure_csv
 from .tracks import MAX_INDEX
 
 __all__ = ["GroundTruth", "ground_truth_files", "read_ground_truth", "read_ground_truth_tracks", "GROUND_TRUTH_FILES"]
@@ -87,17 +88,6 @@ class GroundTruth:
         return truth
 
 
-def _csv_text(header: list[str], rows: Iterable[Iterable[object]]) -> str:
-    lines = [",".join(header)]
-    lines.extend(",".join(str(v) for v in row) for row in rows)
-    return "\n".join(lines) + "\n"
-
-
-def _number(value: float) -> str:
-    # the shortest text that reads back as the same float: ground truth stays exact
-    return "" if not np.isfinite(value) else repr(float(value))
-
-
 def ground_truth_files(truth: GroundTruth) -> dict[str, str]:
     """The ground-truth CSV texts of ``truth`` by file name (see the module notes).
 
@@ -107,36 +97,35 @@ def ground_truth_files(truth: GroundTruth) -> dict[str, str]:
     n_frames, n_points = truth.visible.shape
     ids = truth.track_ids
     tracks = (
-        (f, int(ids[p]), _number(truth.positions[f, p, 0]), _number(truth.positions[f, p, 1]), int(truth.visible[f, p]))
+        (f, int(ids[p]), number(truth.positions[f, p, 0]), number(truth.positions[f, p, 1]), int(truth.visible[f, p]))
         for f in range(n_frames)
         for p in range(n_points)
     )
     start = (
-        (int(ids[p]), _number(truth.positions[0, p, 0]), _number(truth.positions[0, p, 1]))
+        (int(ids[p]), number(truth.positions[0, p, 0]), number(truth.positions[0, p, 1]))
         for p in range(n_points)
         if truth.visible[0, p]
     )
     files = {
-        TRACKS_FILE: _csv_text(["frame", "track_id", "x", "y", "visible"], tracks),
-        START_POINTS_FILE: _csv_text(["track_id", "x", "y"], start),
+        TRACKS_FILE: csv_text(["frame", "track_id", "x", "y", "visible"], tracks),
+        START_POINTS_FILE: csv_text(["track_id", "x", "y"], start),
     }
     if truth.points_3d is not None:
-        points = ((int(ids[p]), *(_number(v) for v in truth.points_3d[p])) for p in range(n_points))
-        files[POINTS_FILE] = _csv_text(["track_id", "X", "Y", "Z"], points)
+        files[POINTS_FILE] = structure_csv(ids, truth.points_3d)
     if truth.rotation_rows is not None and truth.translations is not None and truth.scales is not None:
         motion = (
-            (f, *(_number(v) for v in truth.rotation_rows[f].ravel()), *(_number(v) for v in truth.translations[f]),
-             _number(truth.scales[f]))
+            (f, *(number(v) for v in truth.rotation_rows[f].ravel()), *(number(v) for v in truth.translations[f]),
+             number(truth.scales[f]))
             for f in range(n_frames)
         )
-        files[MOTION_FILE] = _csv_text(MOTION_COLUMNS, motion)
+        files[MOTION_FILE] = csv_text(MOTION_COLUMNS, motion)
     if truth.occluder_boxes is not None and np.isfinite(truth.occluder_boxes).any():
         marker = truth.occluder_markers if truth.occluder_markers is not None else np.full((n_frames, 2), np.nan)
         rows = (
-            (f, *(_number(v) for v in truth.occluder_boxes[f]), *(_number(v) for v in marker[f]))
+            (f, *(number(v) for v in truth.occluder_boxes[f]), *(number(v) for v in marker[f]))
             for f in range(n_frames)
         )
-        files[OCCLUDER_FILE] = _csv_text(["frame", "x0", "y0", "x1", "y1", "marker_x", "marker_y"], rows)
+        files[OCCLUDER_FILE] = csv_text(["frame", "x0", "y0", "x1", "y1", "marker_x", "marker_y"], rows)
     return files
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from .._validation import check_positive
 from ..errors import InvalidInputError
-from .ground_truth import _number
+from ._csv import number
 from .tracks import _floats, _indices, _read_csv_rows
 
 __all__ = ["INTRINSICS_COLUMNS", "intrinsics_csv", "intrinsics_from_focal", "read_intrinsics"]
@@ -118,5 +118,5 @@ def intrinsics_csv(frames: object, intrinsics: np.ndarray) -> str:
     lines = [",".join(INTRINSICS_COLUMNS)]
     for frame, k in zip(np.asarray(frames).ravel(), K):
         values = (k[0, 0], k[1, 1], k[0, 2], k[1, 2], k[0, 1])
-        lines.append(",".join([str(int(frame))] + [_number(v) for v in values]))
+        lines.append(",".join([str(int(frame))] + [number(v) for v in values]))
     return "\n".join(lines) + "\n"

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..tracking.tracks import Tracks
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
-from .perspective import PerspectiveCameras, read_perspective_cameras, read_point_covariances
+from .perspective import PerspectiveCameras, read_perspective_cameras
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
 from .summary import SUMMARY_FILE, RunSummary, read_summary
 from .tracks import read_tracks_npz
@@ -52,7 +52,6 @@ class RunFolder:
     ground_truth_tracks : (F, P, 2) true positions in the order of ``tracks.track_ids``,
         NaN where not visible (from ``ground_truth_tracks.csv``).
     cameras : the registered cameras of a perspective reconstruction (``cameras.csv``).
-    point_covariances : (track ids, (P, 3, 3) covariances) of a ``structure.csv`` with covariance columns.
     """
 
     path: Path
@@ -67,7 +66,6 @@ class RunFolder:
     figures: dict[str, Path]
     data_files: tuple[str, ...]
     cameras: PerspectiveCameras | None = None
-    point_covariances: tuple[np.ndarray, np.ndarray] | None = None
 
     def read_frames(self) -> list[np.ndarray]:
         """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none."""
@@ -155,5 +153,4 @@ def load_run(run_dir: str | Path) -> RunFolder:
         figures={name: folder / name for name in RUN_FIGURES if name in listed},
         data_files=tuple(sorted(name for name in listed if "/" not in name and not name.endswith(".png"))),
         cameras=read_perspective_cameras(folder / "cameras.csv") if "cameras.csv" in listed else None,
-        point_covariances=read_point_covariances(folder / "structure.csv") if "structure.csv" in listed else None,
     )

@@ -1,45 +1,69 @@
 """A reconstruction's files: ``structure.csv``, ``structure.ply`` (ASCII) and ``motion.csv``, written and read.
 
-Points or frames that could not be reconstructed (NaN) are left out of the files.
-``structure.csv`` starts with ``track_id,X,Y,Z``, the layout of ``ground_truth_points.csv``,
-so one reader serves both; a reconstruction adds each point's uncertainty::
+``structure.csv`` has one layout for every command (``reconstruct``, ``demo``, ``fuse``,
+``reconstruct --camera perspective``)::
 
-    track_id,X,Y,Z,cov_XX,cov_XY,cov_XZ,cov_YY,cov_YZ,cov_ZZ,views,status
+    track_id,X,Y,Z,cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz,views,reprojection_rms,status
 
-with the 3 × 3 covariance in pixels² (:mod:`kalmansfm.structure.uncertainty`), the frames
-that saw the point and its status, ``ok`` or ``unreliable``
-(:class:`~kalmansfm.structure.uncertainty.PointStatus`).
+one row per track: its point, the upper triangle of the point's 3 × 3 covariance (the units
+and gauge of the reconstruction: pixels² in the factorization's gauge, world units² for a
+fusion with known cameras, the free-network gauge of a perspective run), the views that
+were used, the RMS length of the point's reprojection errors in pixels, and its status
+(:class:`~kalmansfm.structure.PointStatus`: ``ok``, ``too_few_views``, ``degenerate``,
+``behind_camera`` or ``unreliable``).  A cell is empty where there is no value: the numbers
+of a track without a point, a reprojection RMS the method does not give.
+
+The plain layout ``track_id,X,Y,Z`` (``ground_truth_points.csv``, points from other tools)
+is read by the same reader; it lists only the points that have coordinates.  Numbers are
+written as the shortest text that reads back to the same float.
+
+``structure.ply`` holds the points that have coordinates, with ``track_id`` and any
+per-vertex properties given (the commands add ``uncertainty``, √(tr Σ / 3)).
 """
 
 from __future__ import annotations
 
 import csv
-import io
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .._validation import LabelledEnum
 from ..errors import InvalidInputError
-from ..structure.uncertainty import PointStatus
+from ..structure.points import PointStatus
+from ._csv import csv_text, number
 
 MOTION_COLUMNS = ("frame", "i_x", "i_y", "i_z", "j_x", "j_y", "j_z", "t_x", "t_y")
+#: The plain layout: a point per track (ground truth, other tools).
 POINT_COLUMNS = ("track_id", "X", "Y", "Z")
-#: The upper triangle of a point's covariance, row by row, as ``structure.csv`` names it.
-COVARIANCE_COLUMNS = ("cov_XX", "cov_XY", "cov_XZ", "cov_YY", "cov_YZ", "cov_ZZ")
+#: The upper triangle of a point's covariance, row by row.
+COVARIANCE_COLUMNS = ("cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz")
+#: The layout of every ``structure.csv`` a command writes.
+STRUCTURE_COLUMNS = (*POINT_COLUMNS, *COVARIANCE_COLUMNS, "views", "reprojection_rms", "status")
 _UPPER = np.triu_indices(3)
 
-__all__ = ["CameraMotion", "PointTable", "motion_csv", "read_motion_csv", "read_points_table", "structure_csv", "structure_ply"]
+__all__ = [
+    "COVARIANCE_COLUMNS",
+    "POINT_COLUMNS",
+    "STRUCTURE_COLUMNS",
+    "CameraMotion",
+    "PointTable",
+    "motion_csv",
+    "read_motion_csv",
+    "read_points_table",
+    "structure_csv",
+    "structure_ply",
+]
 
 
-def _check(track_ids: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The ids and points of the reconstructed (finite) points, and which rows they were."""
+def _check(track_ids: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ids (int64) and (P, 3) points, checked against each other."""
     ids = np.asarray(track_ids)
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or ids.shape != (pts.shape[0],):
         raise InvalidInputError(f"need points (P, 3) and track_ids (P,); got {pts.shape} and {ids.shape}")
-    keep = np.isfinite(pts).all(axis=1)
-    return ids[keep].astype(np.int64), pts[keep], keep
+    return ids.astype(np.int64), pts
 
 
 def structure_csv(
@@ -49,54 +73,58 @@ def structure_csv(
     covariances: np.ndarray | None = None,
     views: np.ndarray | None = None,
     status: np.ndarray | None = None,
+    reprojection_rms: np.ndarray | None = None,
 ) -> str:
-    """``structure.csv`` text, one line per reconstructed point: ``track_id,X,Y,Z`` and its uncertainty.
+    """``structure.csv`` text: every track with its point, covariance, views, reprojection RMS and status.
 
     Parameters
     ----------
-    track_ids : (P,) int; points : (P, 3) float — NaN rows (not reconstructed) are left out.
-    covariances : (P, 3, 3), views : (P,), status : (P,) :class:`PointStatus` codes — the
-        point's uncertainty (all three, or none for the plain ``track_id,X,Y,Z`` layout).
+    track_ids : (P,) int; points : (P, 3) float, NaN for a track without a point.
+    covariances : (P, 3, 3), views : (P,), status : (P,) :class:`~kalmansfm.structure.PointStatus`
+        codes — given together (the full layout, a row per track), or none of them (the plain
+        ``track_id,X,Y,Z`` layout of the points that have coordinates).
+    reprojection_rms : (P,) pixels, optional with the full layout (empty cells without it).
 
     Examples
     --------
     >>> print(structure_csv([3, 5], [[0.0, 1.0, 2.0], [np.nan] * 3]), end="")
     track_id,X,Y,Z
-    3,0,1,2
-    >>> print(structure_csv([3], [[0.0, 1.0, 2.0]], covariances=np.eye(3)[None] * 4, views=[2], status=[1]), end="")
-    track_id,X,Y,Z,cov_XX,cov_XY,cov_XZ,cov_YY,cov_YZ,cov_ZZ,views,status
-    3,0,1,2,4,0,0,4,0,4,2,unreliable
+    3,0.0,1.0,2.0
+    >>> print(structure_csv([3, 5], [[0.0, 1.0, 2.5], [np.nan] * 3], covariances=[np.eye(3) * 4, np.full((3, 3), np.nan)],
+    ...                     views=[7, 1], status=[0, 1], reprojection_rms=[0.25, np.nan]), end="")
+    track_id,X,Y,Z,cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz,views,reprojection_rms,status
+    3,0.0,1.0,2.5,4.0,0.0,0.0,4.0,0.0,4.0,7,0.25,ok
+    5,,,,,,,,,,1,,too_few_views
     """
-    ids, pts, keep = _check(track_ids, points)
+    ids, pts = _check(track_ids, points)
     given = [a is not None for a in (covariances, views, status)]
-    if any(given) and not all(given):
+    if not any(given):
+        if reprojection_rms is not None:
+            raise InvalidInputError("structure_csv: reprojection_rms needs covariances, views and status")
+        keep = np.isfinite(pts).all(axis=1)
+        return csv_text(POINT_COLUMNS, ([i, *map(number, p)] for i, p in zip(ids[keep].tolist(), pts[keep])))
+    if not all(given):
         raise InvalidInputError("structure_csv needs covariances, views and status together, or none of them")
-    columns = list(POINT_COLUMNS)
-    extra: list[list[str]] = [[] for _ in ids]
-    if all(given):
-        cov = np.asarray(covariances, dtype=np.float64)
-        seen = np.asarray(views)
-        codes = np.asarray(status)
-        n = len(keep)
-        if cov.shape != (n, 3, 3) or seen.shape != (n,) or codes.shape != (n,):
-            raise InvalidInputError(
-                f"need covariances ({n}, 3, 3), views ({n},) and status ({n},); "
-                f"got {cov.shape}, {seen.shape}, {codes.shape}"
-            )
-        words = [PointStatus(int(c)).label for c in codes[keep]]
-        upper = cov[keep][:, _UPPER[0], _UPPER[1]]
-        extra = [[f"{v:.6g}" for v in row] + [str(int(k)), w] for row, k, w in zip(upper.tolist(), seen[keep], words)]
-        columns += [*COVARIANCE_COLUMNS, "views", "status"]
-    out = io.StringIO()
-    out.write(",".join(columns) + "\n")
-    for i, (x, y, z), more in zip(ids.tolist(), pts.tolist(), extra):
-        out.write(",".join([str(i), f"{x:.10g}", f"{y:.10g}", f"{z:.10g}", *more]) + "\n")
-    return out.getvalue()
+    n = len(ids)
+    cov = np.asarray(covariances, dtype=np.float64)
+    seen = np.asarray(views)
+    codes = np.asarray(status)
+    rms = np.full(n, np.nan) if reprojection_rms is None else np.asarray(reprojection_rms, dtype=np.float64)
+    if cov.shape != (n, 3, 3) or seen.shape != (n,) or codes.shape != (n,) or rms.shape != (n,):
+        raise InvalidInputError(
+            f"need covariances ({n}, 3, 3), views ({n},), status ({n},) and reprojection_rms ({n},); "
+            f"got {cov.shape}, {seen.shape}, {codes.shape}, {rms.shape}"
+        )
+    words = [PointStatus(int(c)).label for c in codes]
+    numbers = np.hstack([pts, cov[:, _UPPER[0], _UPPER[1]]])
+    rows = ([i, *map(number, row), int(k), number(r), w]
+            for i, row, k, r, w in zip(ids.tolist(), numbers, seen.tolist(), rms, words))
+    return csv_text(STRUCTURE_COLUMNS, rows)
 
 
 def structure_ply(track_ids: np.ndarray, points: np.ndarray, *, comment: str = "kalmansfm reconstruction",
                   properties: dict[str, np.ndarray] | None = None) -> str:
-    """ASCII PLY text: one vertex (``float x, y, z``, ``int track_id``) per reconstructed point.
+    """ASCII PLY text: one vertex (``float x, y, z``, ``int track_id``) per point that has coordinates.
 
     ``properties`` adds a ``float`` vertex property per name, one value per point (e.g. an
     uncertainty).  Opens in MeshLab, Open3D and CloudCompare.
@@ -117,12 +145,14 @@ def structure_ply(track_ids: np.ndarray, points: np.ndarray, *, comment: str = "
     >>> structure_ply([4], [[1.0, 2.0, 3.0]], properties={"uncertainty": [0.25]}).splitlines()[-3:]
     ['property float uncertainty', 'end_header', '1 2 3 4 0.25']
     """
-    ids, pts, keep = _check(track_ids, points)
+    ids, pts = _check(track_ids, points)
+    keep = np.isfinite(pts).all(axis=1)
     extra = {name: np.asarray(values, dtype=np.float64) for name, values in (properties or {}).items()}
     for name, values in extra.items():
         if values.shape != keep.shape:
             raise InvalidInputError(f"property {name} needs one value per point ({keep.shape[0]}); got {values.shape}")
     columns = [values[keep] for values in extra.values()]
+    ids, pts = ids[keep], pts[keep]
     header = [
         "ply",
         "format ascii 1.0",
@@ -156,20 +186,17 @@ def motion_csv(frames: np.ndarray, motion: np.ndarray, translation: np.ndarray) 
         raise InvalidInputError(f"need frames (F,), motion (F, 2, 3), translation (F, 2); got {f.shape}, {m.shape}, {t.shape}")
     rows = np.hstack([m.reshape(-1, 6), t])
     keep = np.isfinite(rows).all(axis=1)
-    out = io.StringIO()
-    out.write(",".join(MOTION_COLUMNS) + "\n")
-    for frame, values in zip(f[keep].tolist(), rows[keep].tolist()):
-        out.write(f"{frame}," + ",".join(f"{v:.10g}" for v in values) + "\n")
-    return out.getvalue()
+    return csv_text(MOTION_COLUMNS, ([frame, *(f"{v:.10g}" for v in values)]
+                                     for frame, values in zip(f[keep].tolist(), rows[keep].tolist())))
 
 
 
 @dataclass(frozen=True)
 class PointTable:
-    """3D points keyed by track id (``structure.csv``, ``ground_truth_points.csv``).
+    """3D points keyed by track id (``structure.csv``, ``ground_truth_points.csv``): the rows with coordinates.
 
-    ``covariances`` (P, 3, 3), ``views`` (P,) and ``status`` (P,) :class:`PointStatus` codes
-    are None when the file does not give them.
+    ``covariances`` (P, 3, 3), ``views`` (P,), ``reprojection_rms`` (P,) and ``status`` (P,)
+    :class:`~kalmansfm.structure.PointStatus` codes are None when the file does not give them.
     """
 
     track_ids: np.ndarray  # (P,)
@@ -177,10 +204,11 @@ class PointTable:
     covariances: np.ndarray | None = None
     views: np.ndarray | None = None
     status: np.ndarray | None = None
+    reprojection_rms: np.ndarray | None = None
 
     @property
     def reliable(self) -> np.ndarray:
-        """(P,) True for the points not marked unreliable (all of them when the file gives no status)."""
+        """(P,) True for the points with status ``ok`` (all of them when the file gives no status)."""
         if self.status is None:
             return np.ones(len(self.track_ids), bool)
         return self.status == PointStatus.OK
@@ -206,13 +234,14 @@ class CameraMotion:
 
 
 def _read_columns(
-    path: Path, columns: tuple[str, ...], optional: tuple[str, ...] = (), words: dict[str, tuple[str, ...]] | None = None
+    path: Path, columns: tuple[str, ...], optional: tuple[str, ...] = (),
+    words: dict[str, type[LabelledEnum]] | None = None,
 ) -> dict[str, np.ndarray]:
     """Columns of a CSV file with a header row, checked row by row.
 
     ``columns`` must be there; ``optional`` ones are read when the header has them.  Columns
-    are numbers, except those named in ``words``, which hold one of the words given (read
-    as the word's index).
+    are numbers (an empty cell is NaN: no value), except those named in ``words``, which
+    hold a label of the status enum given (read as its code).
     """
     words = words or {}
     try:
@@ -229,12 +258,16 @@ def _read_columns(
             values: dict[str, list[float]] = {c: [] for c in wanted}
             for row in reader:
                 for c in wanted:
+                    cell = row[c]
                     try:
-                        values[c].append(words[c].index(row[c]) if c in words else float(row[c]))
-                    except (TypeError, ValueError):
-                        expected = "one of " + ", ".join(words[c]) if c in words else "a number"
+                        if c in words:
+                            values[c].append(words[c].from_label(cell).value)  # type: ignore[arg-type]
+                        else:
+                            values[c].append(np.nan if cell == "" else float(cell))  # type: ignore[arg-type]
+                    except (TypeError, ValueError, KeyError, AttributeError):
+                        expected = "one of " + ", ".join(s.label for s in words[c]) if c in words else "a number"
                         raise InvalidInputError(
-                            f"{path}, line {reader.line_num}: column {c!r} must be {expected}; got {row[c]!r}"
+                            f"{path}, line {reader.line_num}: column {c!r} must be {expected}; got {cell!r}"
                         ) from None
     except UnicodeDecodeError:
         raise InvalidInputError(f"{path}: is not UTF-8 text") from None
@@ -244,33 +277,41 @@ def _read_columns(
 
 
 def read_points_table(path: str | Path) -> PointTable | None:
-    """The finite rows of a ``track_id,X,Y,Z[,cov_XX,…,views,status]`` file; None if there are none.
+    """The rows with coordinates of a ``structure.csv`` (either layout); None if there are none.
+
+    Of the columns after ``track_id,X,Y,Z``, those the file has are read (the covariance
+    when all six ``cov_*`` are there).
 
     Examples
     --------
     >>> import tempfile, pathlib
     >>> f = pathlib.Path(tempfile.mkdtemp()) / "structure.csv"
-    >>> _ = f.write_text(structure_csv([3, 5], [[0.0, 1.0, 2.0], [4.0, 5.0, 6.0]],
-    ...                                covariances=np.stack([np.eye(3)] * 2), views=[9, 2], status=[0, 1]))
+    >>> _ = f.write_text(structure_csv([3, 5, 8], [[0.0, 1.0, 2.0], [4.0, 5.0, 6.0], [np.nan] * 3],
+    ...                                covariances=np.stack([np.eye(3)] * 3), views=[9, 2, 1], status=[0, 4, 1]))
     >>> table = read_points_table(f)
-    >>> table.track_ids.tolist(), table.views.tolist(), table.reliable.tolist()
-    ([3, 5], [9, 2], [True, False])
+    >>> table.track_ids.tolist(), table.views.tolist(), table.reliable.tolist(), table.covariances.shape
+    ([3, 5], [9, 2], [True, False], (2, 3, 3))
     """
-    labels = tuple(s.label for s in PointStatus)
-    cols = _read_columns(Path(path), POINT_COLUMNS, (*COVARIANCE_COLUMNS, "views", "status"), {"status": labels})
+    more = (*COVARIANCE_COLUMNS, "views", "reprojection_rms", "status")
+    cols = _read_columns(Path(path), POINT_COLUMNS, more, {"status": PointStatus})
     points = np.column_stack([cols["X"], cols["Y"], cols["Z"]])
     keep = np.isfinite(points).all(axis=1) & np.isfinite(cols["track_id"])
     if not keep.any():
         return None
-    uncertainty: dict[str, np.ndarray] = {}
-    if all(c in cols for c in (*COVARIANCE_COLUMNS, "views", "status")):
+    found: dict[str, np.ndarray] = {}
+    if all(c in cols for c in COVARIANCE_COLUMNS):
         upper = np.column_stack([cols[c] for c in COVARIANCE_COLUMNS])[keep]
         covariances = np.empty((len(upper), 3, 3))
         covariances[:, _UPPER[0], _UPPER[1]] = upper
         covariances[:, _UPPER[1], _UPPER[0]] = upper
-        uncertainty = {"covariances": covariances, "views": cols["views"][keep].astype(np.int64),
-                       "status": cols["status"][keep].astype(np.int8)}
-    return PointTable(cols["track_id"][keep].astype(np.int64), points[keep], **uncertainty)
+        found["covariances"] = covariances
+    if "views" in cols:
+        found["views"] = np.nan_to_num(cols["views"][keep]).astype(np.int64)
+    if "status" in cols:
+        found["status"] = cols["status"][keep].astype(np.int8)
+    if "reprojection_rms" in cols:
+        found["reprojection_rms"] = cols["reprojection_rms"][keep]
+    return PointTable(cols["track_id"][keep].astype(np.int64), points[keep], **found)
 
 
 def read_motion_csv(path: str | Path) -> CameraMotion | None:

@@ -200,7 +200,7 @@ def run_demo(
         with clock.step("writing"):
             names = stage_frames(out, frames, "frames/") if save_frames else []
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
-            if reconstruction is not None:
+            if reconstruction is not None and uncertainty is not None:  # computed together
                 names += stage_structure(out, reconstruction, tracks.track_ids, uncertainty=uncertainty,
                                          frames=tracks.frames)
             if calibrated is not None:

@@ -12,13 +12,14 @@ import numpy as np
 from .._version import __version__
 from ..io.atomic import check_output_directory, output_directory
 from ..io.cameras import CameraObservations, match_cameras, read_cameras
-from ..io.fusion import fused_structure_csv, fused_structure_ply, history_csv, point_uncertainty, rejected_csv
+from ..io.fusion import history_csv, rejected_csv
 from ..io.summary import FusionMetrics, RunSummary
 from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
 from ..structure.point_fusion import FusedStructure, FusionSettings, fuse_with_settings
+from ..structure.points import PointStatus, rms_std
 from .cluster import ScatteringExecutor, check_workers, dask_client
-from .stage import Stopwatch, stage_summary
+from .stage import Stopwatch, stage_points, stage_summary
 
 __all__ = ["FuseRun", "run_fuse"]
 
@@ -46,7 +47,7 @@ def fusion_metrics(data: CameraObservations, fused: FusedStructure, settings: Fu
         method=fused.method,
         cameras=len(data.cameras),
         points=int(ok.size),
-        fused=counts["fused"],
+        fused=counts[PointStatus.OK.label],
         too_few_views=counts["too_few_views"],
         degenerate=counts["degenerate"],
         behind_camera=counts["behind_camera"],
@@ -57,7 +58,7 @@ def fusion_metrics(data: CameraObservations, fused: FusedStructure, settings: Fu
         degrees_of_freedom=fused.degrees_of_freedom,
         outlier_probability=settings.outlier_probability,
         reprojection_rms_px=rms,
-        median_std=float(np.median(point_uncertainty(fused.covariances[ok]))) if ok.any() else None,
+        median_std=float(np.median(rms_std(fused.covariances[ok]))) if ok.any() else None,
         orientation=fused.orientation,
         passes=fused.passes,
         frames_without_camera=tuple(int(f) for f in data.frames_without_camera),
@@ -74,7 +75,7 @@ def _convergence_png(fused: FusedStructure) -> bytes | None:
     starts = np.r_[0, np.flatnonzero(np.diff(points)) + 1]
     ordinal = np.arange(points.size) - np.repeat(starts, np.diff(np.r_[starts, points.size]))
     # the k-th estimate of a point rests on k + 2 observations (its first comes from two views)
-    return fusion_convergence_figure(ordinal + 2, point_uncertainty(h.covariances[order]), points)
+    return fusion_convergence_figure(ordinal + 2, rms_std(h.covariances[order]), points)
 
 
 def run_fuse(
@@ -149,12 +150,11 @@ def run_fuse(
     frames, ids = data.cameras.frames, data.track_ids
     with output_directory(out_dir) as out:
         with clock.step("writing"):
-            out.write_text("structure.csv", fused_structure_csv(ids, fused))
+            names = stage_points(out, ids, fused.points, fused.covariances, fused.views, fused.status,
+                                 fused.reprojection_rms, comment=f"kalmansfm {__version__} fuse {Path(tracks_path).name}")
             out.write_text("history.csv", history_csv(frames, ids, fused))
             out.write_text("rejected.csv", rejected_csv(frames, ids, data.observations, fused))
-            out.write_text("structure.ply", fused_structure_ply(
-                ids, fused, comment=f"kalmansfm {__version__} fuse {Path(tracks_path).name}"))
-            names = ["structure.csv", "history.csv", "rejected.csv", "structure.ply"]
+            names += ["history.csv", "rejected.csv"]
             figure = _convergence_png(fused) if plot else None
             if figure is not None:
                 out.write_bytes("fusion.png", figure)

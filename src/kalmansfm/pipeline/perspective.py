@@ -11,17 +11,17 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..io.atomic import OutputDirectory
-from ..io.fusion import point_uncertainty
 from ..io.intrinsics import intrinsics_from_focal, read_intrinsics
-from ..io.perspective import perspective_cameras_csv, perspective_structure_csv, perspective_structure_ply
+from ..io.perspective import perspective_cameras_csv
 from ..io.summary import PerspectiveMetrics
 from ..report.figures import camera_path_figure
 from ..structure.perspective import (
     COVARIANCE_GAUGE,
     PerspectiveReconstruction,
     PerspectiveSettings,
-    ReconstructedPointStatus,
 )
+from ..structure.points import PointStatus, rms_std
+from .stage import stage_points
 
 __all__ = ["CAMERA_MODELS", "perspective_metrics", "resolve_intrinsics", "stage_perspective"]
 
@@ -64,8 +64,8 @@ def perspective_metrics(rec: PerspectiveReconstruction, observations: np.ndarray
         unregistered=tuple(int(f) for f in np.asarray(frames)[~reg]),
         points=int(len(status)),
         reconstructed=int(ok.sum()),
-        too_few_views=int(np.sum(status == ReconstructedPointStatus.TOO_FEW_VIEWS)),
-        degenerate=int(np.sum(status == ReconstructedPointStatus.DEGENERATE)),
+        too_few_views=int(np.sum(status == PointStatus.TOO_FEW_VIEWS)),
+        degenerate=int(np.sum(status == PointStatus.DEGENERATE)),
         observations=int(np.isfinite(observations).all(axis=2).sum()),
         inliers=int(rec.inliers.sum()),
         pixel_std_px=float(rec.pixel_std),
@@ -74,9 +74,8 @@ def perspective_metrics(rec: PerspectiveReconstruction, observations: np.ndarray
         initial_pair=(int(np.asarray(frames)[rec.initial_pair[0]]), int(np.asarray(frames)[rec.initial_pair[1]])),
         outlier_threshold_px=float(settings.outlier_threshold_px),
         outlier_probability=float(settings.outlier_probability),
-        median_point_std=float(np.median(point_uncertainty(rec.point_covariances[ok]))) if ok.any() else None,
-        median_centre_std=float(np.median(np.sqrt(np.trace(rec.camera_covariances[reg, 3:, 3:], axis1=1, axis2=2)
-                                                  / 3.0))) if reg.any() else None,
+        median_point_std=float(np.median(rms_std(rec.point_covariances[ok]))) if ok.any() else None,
+        median_centre_std=float(np.median(rms_std(rec.camera_covariances[reg, 3:, 3:]))) if reg.any() else None,
         covariance_gauge=COVARIANCE_GAUGE,
         camera_choice=camera_choice,
     )
@@ -85,13 +84,13 @@ def perspective_metrics(rec: PerspectiveReconstruction, observations: np.ndarray
 def stage_perspective(out: OutputDirectory, rec: PerspectiveReconstruction, frames: np.ndarray,
                       track_ids: np.ndarray, *, comment: str, plot: bool = True) -> list[str]:
     """Stage structure.csv (with covariances), cameras.csv, structure.ply (and reconstruction.png)."""
-    out.write_text("structure.csv", perspective_structure_csv(track_ids, rec))
+    names = stage_points(out, track_ids, rec.points, rec.point_covariances, rec.views, rec.point_status,
+                         rec.point_reprojection_rms, comment=f"{comment}; covariances in the {COVARIANCE_GAUGE}")
     out.write_text("cameras.csv", perspective_cameras_csv(frames, rec))
-    out.write_text("structure.ply", perspective_structure_ply(track_ids, rec, comment=comment))
-    names = ["structure.csv", "cameras.csv", "structure.ply"]
+    names.append("cameras.csv")
     ok, reg = rec.reconstructed, rec.registered
     if plot and ok.any() and reg.any():
         out.write_bytes("reconstruction.png", camera_path_figure(
-            rec.centres[reg], np.asarray(frames)[reg].tolist(), rec.points[ok], point_uncertainty(rec.point_covariances[ok])))
+            rec.centres[reg], np.asarray(frames)[reg].tolist(), rec.points[ok], rms_std(rec.point_covariances[ok])))
         names.append("reconstruction.png")
     return names

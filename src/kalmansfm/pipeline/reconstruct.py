@@ -207,7 +207,7 @@ def run_reconstruct(
                                           comment=f"kalmansfm {__version__} from {name}", plot=plot)
             else:
                 names = stage_structure(out, reconstruction, tracks.track_ids,  # type: ignore[arg-type]
-                                        uncertainty=uncertainty, frames=tracks.frames, comment=f"kalmansfm {__version__} from {name}",
-                                        plot=plot)
+                                        uncertainty=uncertainty,  # type: ignore[arg-type]
+                                        frames=tracks.frames, comment=f"kalmansfm {__version__} from {name}", plot=plot)
         summary = stage_summary(out, summary, clock, names)
     return ReconstructRun(Path(out_dir), tracks, reconstruction, summary, rec, uncertainty)

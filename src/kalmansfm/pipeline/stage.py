@@ -20,10 +20,10 @@ from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
 from ..io.tracks import write_tracks_csv, write_tracks_npz
 from ..report.drawing import tracks_gif, tracks_overview_png
 from ..report.figures import covariance_trace_figure, shape_views_figure
-from ..structure import PointUncertainty, Reconstruction
+from ..structure import PointUncertainty, Reconstruction, rms_std
 from ..tracking.tracks import Tracks
 
-__all__ = ["Stopwatch", "stage_structure", "stage_summary", "stage_tracking"]
+__all__ = ["Stopwatch", "stage_points", "stage_structure", "stage_summary", "stage_tracking"]
 
 
 class Stopwatch:
@@ -89,34 +89,46 @@ def stage_structure(
     reconstruction: Reconstruction,
     track_ids: np.ndarray,
     *,
-    uncertainty: PointUncertainty | None = None,
+    uncertainty: PointUncertainty,
     frames: np.ndarray | None = None,
     comment: str = "kalmansfm reconstruction",
     plot: bool = True,
 ) -> list[str]:
     """Stage the factorization's files: structure.csv, structure.ply, motion.csv (and structure.png).
 
-    With ``uncertainty`` structure.csv carries each point's covariance, views and status,
-    and structure.png leaves the unreliable points out (and says how many).  ``frames`` are
+    structure.csv carries each point's covariance, views, reprojection RMS and status from
+    ``uncertainty``, structure.ply each point's ``uncertainty`` (√(tr Σ / 3), pixels), and
+    structure.png leaves the unreliable points out (and says how many).  ``frames`` are
     the frame numbers written in motion.csv (default 0, 1, …); ``comment`` goes into the
     PLY header.
     """
-    extra = {}
-    if uncertainty is not None:
-        extra = {"covariances": uncertainty.covariances, "views": uncertainty.views, "status": uncertainty.status}
-    out.write_text("structure.csv", structure_csv(track_ids, reconstruction.points, **extra))
-    out.write_text("structure.ply", structure_ply(track_ids, reconstruction.points, comment=comment))
+    stage_points(out, track_ids, reconstruction.points, uncertainty.covariances, uncertainty.views,
+                 uncertainty.status, uncertainty.reprojection_rms, comment=comment)
     if frames is None:
         frames = np.arange(reconstruction.motion.shape[0])
     out.write_text("motion.csv", motion_csv(frames, reconstruction.motion, reconstruction.translation))
     names = ["structure.csv", "structure.ply", "motion.csv"]
     finite = np.isfinite(reconstruction.points).all(axis=1)
-    shown = finite if uncertainty is None else finite & uncertainty.reliable
+    shown = finite & uncertainty.reliable
     if plot and shown.any():
         out.write_bytes("structure.png", shape_views_figure(reconstruction.points[shown], track_ids[shown].tolist(),
                                                            hidden=int((finite & ~shown).sum())))
         names.append("structure.png")
     return names
+
+
+def stage_points(out: OutputDirectory, track_ids: np.ndarray, points: np.ndarray, covariances: np.ndarray,
+                 views: np.ndarray, status: np.ndarray, reprojection_rms: np.ndarray, *, comment: str) -> list[str]:
+    """Stage structure.csv (every track with its covariance, views, RMS and status) and structure.ply.
+
+    The one way every command writes its points (:mod:`kalmansfm.io.structure`); the PLY
+    gives each vertex its ``uncertainty``, √(tr Σ / 3).
+    """
+    out.write_text("structure.csv", structure_csv(track_ids, points, covariances=covariances, views=views,
+                                                  status=status, reprojection_rms=reprojection_rms))
+    out.write_text("structure.ply", structure_ply(track_ids, points, comment=comment,
+                                                  properties={"uncertainty": rms_std(covariances)}))
+    return ["structure.csv", "structure.ply"]
 
 
 def stage_summary(out: OutputDirectory, summary: RunSummary, clock: Stopwatch, files: list[str]) -> RunSummary:

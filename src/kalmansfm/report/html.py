@@ -30,6 +30,7 @@ from ..io.run_folder import RunFolder, load_run
 from ..io.structure import PointTable
 from ..io.summary import SUMMARY_FILE, RunSummary
 from ..structure.cameras import camera_rotation_matrices
+from ..structure.points import rms_std
 from . import figures
 from ._assets import CSS, ERROR_TRAP_JS, JS
 from .drawing import gate_radius_of, render_tracked_frames, track_colors
@@ -429,6 +430,14 @@ def _section_factorization(run: RunFolder) -> str | None:
     return "".join(parts)
 
 
+def _by_uncertainty(run: RunFolder) -> bool:
+    """Colour the points by their uncertainty: runs with covariances and no tracks to match by colour.
+
+    A factorization's points keep their tracks' colours, so that a point can be found in the player.
+    """
+    return run.structure is not None and run.structure.covariances is not None and run.summary.structure is None
+
+
 def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray | None) -> dict[str, Any]:
     reliable = structure.reliable
     core = structure.points[reliable] if reliable.any() else structure.points
@@ -438,13 +447,9 @@ def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray
     inside = np.abs(core - centre).max(axis=1) <= half
     radius = float(np.linalg.norm(core[inside] - centre, axis=1).max()) if inside.any() else half
     colors = track_colors(structure.track_ids)
-    if run.point_covariances is not None:
-        # points coloured by their uncertainty (viridis, log scale), matched to structure.csv by track id
-        ids, cov = run.point_covariances
-        u = np.full(len(structure.track_ids), np.nan)
-        common, here, there = np.intersect1d(structure.track_ids, ids, return_indices=True)
-        u[here] = np.sqrt(np.trace(cov[there], axis1=1, axis2=2) / 3.0)
-        colors = figures.uncertainty_colors(u)[0]
+    if _by_uncertainty(run):
+        # points coloured by their uncertainty (viridis, log scale)
+        colors = figures.uncertainty_colors(rms_std(structure.covariances))[0]
     payload: dict[str, Any] = {
         "points": np.round(points, 6).tolist(),
         "labels": structure.track_ids.tolist(),
@@ -505,9 +510,10 @@ def _section_shape(run: RunFolder) -> str | None:
         if run.motion is not None or run.cameras is not None
         else ""
     )
-    squares = ("the recovered camera centres (the camera path); points coloured by their uncertainty, dark = "
-               "certain, yellow = uncertain" if run.cameras is not None
+    squares = ("the recovered camera centres (the camera path)" if run.cameras is not None
                else "the direction each camera looked from (the recovered camera path)")
+    if _by_uncertainty(run):
+        squares += "; points coloured by their uncertainty, dark = certain, yellow = uncertain"
     unreliable = int((~structure.reliable).sum())
     unreliable_toggle = ""
     if unreliable:

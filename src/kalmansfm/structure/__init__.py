@@ -9,8 +9,9 @@ from .factorization import Reconstruction, factorize, metric_upgrade
 from .landmark import LandmarkEstimates, estimate_landmarks
 from .lowrank import TruncatedSVD, subspace_angle, truncated_svd
 from .perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
-from .pinhole import CameraSet, PointStatus, decompose_projection, project_points, triangulate_points
+from .pinhole import CameraSet, decompose_projection, project_points, triangulate_points
 from .point_fusion import FusedStructure, FusionHistory, FusionSettings, fuse, pair_triangulations
+from .points import PointStatus, rms_std
 from .triangulation import TriangulationResult, triangulate_midpoint
 from .uncertainty import PointUncertainty, point_uncertainty
 
@@ -20,10 +21,10 @@ __all__ = [
     "FusedStructure",
     "FusionHistory",
     "FusionSettings",
-    "PointStatus",
     "LandmarkEstimates",
     "PerspectiveReconstruction",
     "PerspectiveSettings",
+    "PointStatus",
     "PointUncertainty",
     "Reconstruction",
     "TriangulationResult",
@@ -39,6 +40,7 @@ __all__ = [
     "point_uncertainty",
     "project_points",
     "reconstruct_perspective",
+    "rms_std",
     "subspace_angle",
     "triangulate_midpoint",
     "triangulate_points",

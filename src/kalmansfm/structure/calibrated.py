@@ -7,13 +7,13 @@ Shared by the batch method (:mod:`.incremental`) and the recursive one
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import IntEnum
 
 import numpy as np
 from scipy import stats
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from .._validation import as_float_array, check_count, check_positive
+from .._validation import LabelledEnum, as_float_array, check_count, check_positive
+from .points import PointStatus
 
 __all__ = [
     "COVARIANCE_GAUGE",
@@ -22,7 +22,6 @@ __all__ = [
     "FrameStatus",
     "PerspectiveReconstruction",
     "PerspectiveSettings",
-    "ReconstructedPointStatus",
     "validate_tracks_and_intrinsics",
 ]
 
@@ -36,30 +35,12 @@ DEFAULT_OUTLIER_THRESHOLD_PX = 4.0
 
 
 
-class ReconstructedPointStatus(IntEnum):
-    """Outcome for one track; its ``label`` is the word written to files."""
-
-    RECONSTRUCTED = 0  #: a 3-D point with a covariance
-    TOO_FEW_VIEWS = 1  #: fewer than 2 consistent observations in registered frames
-    DEGENERATE = 2  #: its rays are (nearly) parallel: depth undetermined
-
-    @property
-    def label(self) -> str:
-        """``reconstructed``, ``too_few_views`` or ``degenerate``."""
-        return self.name.lower()
-
-
-class FrameStatus(IntEnum):
-    """Outcome for one frame; its ``label`` is the word written to files."""
+class FrameStatus(LabelledEnum):
+    """Outcome for one frame; its ``label`` (``registered``, ``not_connected``, ``pose_failed``) is the word files use."""
 
     REGISTERED = 0  #: the frame has a pose
     NOT_CONNECTED = 1  #: it shares too few tracks with the reconstructed points
     POSE_FAILED = 2  #: no consistent pose from the points it shares
-
-    @property
-    def label(self) -> str:
-        """``registered``, ``not_connected`` or ``pose_failed``."""
-        return self.name.lower()
 
 
 @dataclass(frozen=True)
@@ -128,7 +109,8 @@ class PerspectiveReconstruction:
     point_covariances : (P, 3, 3) — covariance of each point after a least-squares
         similarity alignment of all points onto a reference (the free-network
         gauge); NaN where not reconstructed.
-    point_status : (P,) int8 — :class:`ReconstructedPointStatus` values.
+    point_status : (P,) int8 — :class:`~.points.PointStatus` values: ``OK``, ``TOO_FEW_VIEWS`` (fewer than
+        2 consistent observations in registered frames) or ``DEGENERATE`` (rays nearly parallel).
     views : (P,) int — inlier observations of each point.
     rotations : (F, 3, 3) — NaN for unregistered frames.
     translations : (F, 3) — NaN for unregistered frames.
@@ -173,7 +155,7 @@ class PerspectiveReconstruction:
     @property
     def reconstructed(self) -> np.ndarray:
         """(P,) bool — tracks with a 3-D point."""
-        return self.point_status == ReconstructedPointStatus.RECONSTRUCTED
+        return self.point_status == PointStatus.OK
 
     @property
     def centres(self) -> np.ndarray:

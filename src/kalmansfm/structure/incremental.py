@@ -17,12 +17,12 @@ from .calibrated import (
     FrameStatus,
     PerspectiveReconstruction,
     PerspectiveSettings,
-    ReconstructedPointStatus,
     frame_runs,
     residual_rms_per_point,
 )
-from .pinhole import CameraSet, PointStatus, triangulate_points
+from .pinhole import CameraSet, triangulate_points
 from .point_fusion import fuse
+from .points import PointStatus
 
 __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
 
@@ -362,12 +362,12 @@ class _Incremental:
         cam_cov = np.full((self.F, 6, 6), np.nan)
         cam_cov[frames] = turn @ cov.cameras @ turn.T
         t = -np.einsum("fij,fj->fi", R, C)
-        status = np.full(self.P, ReconstructedPointStatus.TOO_FEW_VIEWS, dtype=np.int8)
-        status[self.has_point] = ReconstructedPointStatus.RECONSTRUCTED
+        status = np.full(self.P, PointStatus.TOO_FEW_VIEWS, dtype=np.int8)
+        status[self.has_point] = PointStatus.OK
         inliers = self.inlier & self.seen & self.registered[:, None] & self.has_point[None]
         views = inliers.sum(axis=0)
         degenerate = ~self.has_point & ((self.seen & self.inlier)[frames].sum(axis=0) >= 2)
-        status[degenerate] = ReconstructedPointStatus.DEGENERATE
+        status[degenerate] = PointStatus.DEGENERATE
         self._warn()
         point_rms = residual_rms_per_point(self.obs, self.K, R, t, X, inliers)
         return PerspectiveReconstruction(method, X, point_cov, status, views, R, t, cam_cov,

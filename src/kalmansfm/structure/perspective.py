@@ -52,7 +52,6 @@ from .calibrated import (
     FrameStatus,
     PerspectiveReconstruction,
     PerspectiveSettings,
-    ReconstructedPointStatus,
     validate_tracks_and_intrinsics,
 )
 from .incremental import reconstruct_incremental
@@ -65,7 +64,6 @@ __all__ = [
     "FrameStatus",
     "PerspectiveReconstruction",
     "PerspectiveSettings",
-    "ReconstructedPointStatus",
     "reconstruct_perspective",
 ]
 

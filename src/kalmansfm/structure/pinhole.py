@@ -37,17 +37,16 @@ array([[ 0.2, -0.1,  1. ]])
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import as_float_array, check_finite, check_positive
+from .points import PointStatus
 
 __all__ = [
     "CameraPose",
     "CameraSet",
-    "PointStatus",
     "Projection",
     "RefinedPoints",
     "Triangulation",
@@ -73,28 +72,6 @@ _MAX_CONDITION = 1e12
 # fraction of (1 + cost); a point is "converged" once it is below _CONVERGED.
 _STOP_DECREMENT = 1e-18
 _CONVERGED = 1e-6
-
-
-class PointStatus(IntEnum):
-    """Outcome of estimating one point; its ``label`` is the word written to files."""
-
-    OK = 0  #: estimated, in front of its cameras, with a covariance
-    TOO_FEW_VIEWS = 1  #: seen (after outlier rejection) in fewer than 2 views
-    DEGENERATE = 2  #: no parallax (baseline too small, point at infinity) or a singular normal matrix
-    BEHIND_CAMERA = 3  #: the only solution lies behind a camera that sees it
-
-    @property
-    def label(self) -> str:
-        """``fused``, ``too_few_views``, ``degenerate`` or ``behind_camera``."""
-        return _STATUS_LABELS[self]
-
-
-_STATUS_LABELS = {
-    PointStatus.OK: "fused",
-    PointStatus.TOO_FEW_VIEWS: "too_few_views",
-    PointStatus.DEGENERATE: "degenerate",
-    PointStatus.BEHIND_CAMERA: "behind_camera",
-}
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
@@ -555,7 +532,7 @@ def triangulate_points(cameras: CameraSet | np.ndarray, observations: object, vi
     >>> obs[1, 1] = np.nan
     >>> tri = triangulate_points(cams, obs)
     >>> tri.points[0].round(9).tolist(), [PointStatus(s).label for s in tri.status]
-    ([0.3, 0.1, 4.0], ['fused', 'too_few_views'])
+    ([0.3, 0.1, 4.0], ['ok', 'too_few_views'])
     """
     P, obs, seen = _cameras_and_observations(cameras, observations, visible)
     V, N = seen.shape

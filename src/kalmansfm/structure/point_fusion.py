@@ -76,7 +76,6 @@ from .._validation import as_float_array, check_count, check_positive
 from ..estimation.kalman import kalman_update
 from .pinhole import (
     CameraSet,
-    PointStatus,
     _inverse3,
     _solve3,
     decompose_projection,
@@ -86,6 +85,7 @@ from .pinhole import (
     refine_points,
     triangulate_points,
 )
+from .points import PointStatus
 from .triangulation import (
     TRIANGULATION_BEHIND_CAMERA,
     TRIANGULATION_NOT_OBSERVED,
@@ -241,7 +241,8 @@ class FusedStructure:
     method : the method used.
     points : (N, 3) — NaN where the status is not OK.
     covariances : (N, 3, 3) — NaN where the status is not OK.
-    status : (N,) int8 — :class:`~.pinhole.PointStatus` values.
+    status : (N,) int8 — :class:`~.points.PointStatus` values (``ok``, ``too_few_views``,
+        ``degenerate``, ``behind_camera``).
     views : (N,) int — observations used (accepted) per point.
     reprojection_rms : (N,) — RMS reprojection error (pixels) over the accepted observations.
     residuals : (V, N) — length of each observation's reprojection error at the final
@@ -1039,7 +1040,7 @@ def fuse(
     >>> X = rng.uniform([-1, -1, 4], [1, 1, 6], size=(50, 3))
     >>> obs = project_points(cams, X).pixels + rng.normal(scale=0.5, size=(3, 50, 2))
     >>> fused = fuse(obs, cams)
-    >>> fused.status_counts()["fused"], round(fused.pixel_std, 1)
+    >>> fused.status_counts()["ok"], round(fused.pixel_std, 1)
     (50, 0.5)
     >>> err = fused.points - X
     >>> nees = np.einsum("ni,ni->n", err, np.linalg.solve(fused.covariances, err[..., None])[..., 0])

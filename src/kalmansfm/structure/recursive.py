@@ -57,12 +57,12 @@ from .calibrated import (
     FrameStatus,
     PerspectiveReconstruction,
     PerspectiveSettings,
-    ReconstructedPointStatus,
     frame_runs,
     residual_rms_per_point,
 )
 from .incremental import relative_pose
 from .point_fusion import _iterated_update
+from .points import PointStatus
 from .rotation import cross_matrix
 
 __all__ = ["reconstruct_recursive"]
@@ -296,8 +296,8 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     X_cov = np.swapaxes(R_chain[last], 0, 1) @ cov @ R_chain[last]
     registered = frame_status == FrameStatus.REGISTERED
     ok = alive & np.isfinite(X).all(axis=1)
-    status = np.full(P, ReconstructedPointStatus.TOO_FEW_VIEWS, dtype=np.int8)
-    status[ok] = ReconstructedPointStatus.RECONSTRUCTED
+    status = np.full(P, PointStatus.TOO_FEW_VIEWS, dtype=np.int8)
+    status[ok] = PointStatus.OK
     points = np.where(ok[:, None], X, np.nan)
     point_cov = np.full((P, 3, 3), np.nan)
     point_cov[ok] = similarity_free_covariances(X[ok], X_cov[ok])

@@ -20,11 +20,13 @@ affine ambiguity).  Without weights σ̂ is the image noise in pixels; with the 
 
 A point's depth is fixed only by the rotation between the frames that saw it: seen in two
 frames a degree apart, its Z has a standard deviation of about σ / sin 1° ≈ 57 σ.  A point
-is marked *unreliable* (:class:`PointStatus`) when it was seen in fewer than ``min_views``
+is marked *unreliable* (:class:`~.points.PointStatus`) when it was seen in fewer than ``min_views``
 (4) frames, or when the longest axis of its 1σ ellipsoid exceeds ``max_std_ratio`` (0.25)
 times the radius of the shape (the median distance of the well-seen points from their
 median; the covariances and the shape share the gauge, so a depth scale stretched by a
-weak metric upgrade stretches both).
+weak metric upgrade stretches both).  A point the factorization left out (NaN) is
+*too_few_views* when fewer than 2 of the reconstructed frames saw it and *degenerate*
+otherwise (it is not linked to the reconstructed frames).
 
 What Σ_p leaves out:
 
@@ -43,11 +45,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import LabelledEnum, as_float_array
+from .._validation import as_float_array
 from ..errors import InvalidInputError
 from .factorization import Reconstruction
+from .points import PointStatus
 
-__all__ = ["MAX_STD_RATIO", "MIN_VIEWS", "PointStatus", "PointUncertainty", "point_uncertainty"]
+__all__ = ["MAX_STD_RATIO", "MIN_VIEWS", "PointUncertainty", "point_uncertainty"]
 
 #: A point seen in fewer frames than this is unreliable: from 3 frames (6 numbers for its 3 coordinates)
 #: one bad match is not noticed, and a tracker's new track spends its first 2 frames starting.
@@ -56,21 +59,6 @@ MIN_VIEWS = 4
 MAX_STD_RATIO = 0.25
 # The affine ambiguity of factorization: an invertible 3 × 3 map and a 3D shift.
 _GAUGE_PARAMETERS = 12
-
-
-class PointStatus(LabelledEnum):
-    """Whether a reconstructed point is trusted (``structure.csv`` writes the lower-case name).
-
-    Examples
-    --------
-    >>> PointStatus(1).label, PointStatus.from_label("ok").value
-    ('unreliable', 0)
-    """
-
-    #: seen in enough frames, and its uncertainty is within the bound
-    OK = 0
-    #: seen in too few frames, or too uncertain (usually in depth) to say where it is
-    UNRELIABLE = 1
 
 
 @dataclass(frozen=True)
@@ -82,7 +70,10 @@ class PointUncertainty:
     covariances : (P, 3, 3) float — Σ_p in the reconstruction's gauge, pixels²; NaN for a
         point that was not reconstructed or when σ̂ cannot be estimated.
     views : (P,) int — frames in which the point was observed (and used by the fit).
-    status : (P,) int8 — :class:`PointStatus` codes (unreconstructed points: UNRELIABLE).
+    status : (P,) int8 — :class:`~.points.PointStatus` codes: ``OK`` or ``UNRELIABLE`` for a
+        reconstructed point, ``TOO_FEW_VIEWS`` or ``DEGENERATE`` for one left out.
+    reprojection_rms : (P,) float — RMS length of the point's rank-3 residuals
+        |M_f S_p + t_f − x_fp| over the frames that saw it, pixels (NaN where none).
     noise_std : float — σ̂, the standard deviation of unit weight (pixels without weights).
     dof : int — the degrees of freedom n − k behind σ̂.
     radius_px : float — the shape's radius that the bound is relative to.
@@ -92,6 +83,7 @@ class PointUncertainty:
     covariances: np.ndarray
     views: np.ndarray
     status: np.ndarray
+    reprojection_rms: np.ndarray
     noise_std: float
     dof: int
     radius_px: float
@@ -176,7 +168,7 @@ def point_uncertainty(
 
     Examples
     --------
-    >>> from kalmansfm.structure import factorize
+    >>> from kalmansfm.structure import PointStatus, factorize
     >>> rng = np.random.default_rng(0)
     >>> shape = rng.normal(size=(30, 3)) * 50
     >>> rotations = [np.linalg.qr(rng.normal(size=(3, 3)))[0][:2] for _ in range(8)]
@@ -184,8 +176,10 @@ def point_uncertainty(
     >>> tracks[2:, 0] = np.nan                      # point 0 is seen in frames 0 and 1 only
     >>> rec = factorize(tracks)
     >>> u = point_uncertainty(rec, tracks)
-    >>> round(u.noise_std, 1), u.views[:3].tolist(), u.status[:3].tolist()
-    (0.5, [2, 8, 8], [1, 0, 0])
+    >>> round(u.noise_std, 1), u.views[:3].tolist(), [PointStatus(s).label for s in u.status[:3]]
+    (0.5, [2, 8, 8], ['unreliable', 'ok', 'ok'])
+    >>> bool(0.3 < u.reprojection_rms[1] < 1.0)
+    True
     >>> u.warnings
     ("1 of 30 reconstructed points are unreliable (1 seen in fewer than 4 frames): marked 'unreliable' in \
 structure.csv and left out of the plots",)
@@ -212,6 +206,8 @@ structure.csv and left out of the plots",)
     # σ̂² = Σ rᵀ W r / (n − k), k = 3P + 8F − 12
     residual = np.where(used[:, :, None], reconstruction.reprojected() - np.where(used[:, :, None], x, 0.0), 0.0)
     chi_square = float(np.sum(w * residual**2))
+    # each point's RMS residual length over the frames that saw it
+    reprojection_rms = np.where(views > 0, np.sqrt(np.sum(residual**2, axis=(0, 2)) / np.maximum(views, 1)), np.nan)
     observed_coordinates = int(np.count_nonzero(w))
     parameters = 3 * int(point_ok.sum()) + 8 * int(frame_ok.sum()) - _GAUGE_PARAMETERS
     dof = observed_coordinates - parameters
@@ -234,8 +230,12 @@ structure.csv and left out of the plots",)
     well_seen = point_ok & (views >= min_views)
     reference = shape[well_seen] if well_seen.sum() >= 4 else shape[point_ok]
     radius = float(np.median(np.linalg.norm(reference - np.median(reference, axis=0), axis=1))) if len(reference) else np.nan
-    uncertainty = PointUncertainty(covariances, views, np.full(n_points, PointStatus.UNRELIABLE, np.int8),
-                                   float(np.sqrt(noise_var)), int(dof), radius, int(min_views), float(max_std_ratio))
+    # a point left out: too few of the reconstructed frames saw it, or it is not linked to them
+    seen = (reconstruction.observed & frame_ok[:, None]).sum(axis=0)
+    status = np.where(point_ok, PointStatus.UNRELIABLE,
+                      np.where(seen < 2, PointStatus.TOO_FEW_VIEWS, PointStatus.DEGENERATE)).astype(np.int8)
+    uncertainty = PointUncertainty(covariances, views, status, reprojection_rms, float(np.sqrt(noise_var)), int(dof),
+                                   radius, int(min_views), float(max_std_ratio))
     with np.errstate(invalid="ignore"):
         ok = well_seen & np.isfinite(covariances).all(axis=(1, 2)) & (uncertainty.largest_std <= uncertainty.bound_px)
     uncertainty.status[ok] = PointStatus.OK

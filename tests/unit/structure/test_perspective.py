@@ -6,11 +6,11 @@ from scipy.stats import chi2
 
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.perspective import perspective_scene
+from kalmansfm.structure import PointStatus
 from kalmansfm.structure.bundle import compare_in_gauge
 from kalmansfm.structure.perspective import (
     FrameStatus,
     PerspectiveSettings,
-    ReconstructedPointStatus,
     reconstruct_perspective,
 )
 
@@ -126,7 +126,7 @@ def test_a_sequence_that_falls_apart_leaves_one_piece_unregistered(method):
     # tracks of the lost piece have no point, and say why
     lost = ~rec.reconstructed
     assert np.isnan(rec.points[lost]).all()
-    assert set(rec.point_status[lost]) <= {ReconstructedPointStatus.TOO_FEW_VIEWS, ReconstructedPointStatus.DEGENERATE}
+    assert set(rec.point_status[lost]) <= {PointStatus.TOO_FEW_VIEWS, PointStatus.DEGENERATE}
 
 
 def test_recursive_method_follows_batch_on_wide_steps():

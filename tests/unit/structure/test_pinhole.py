@@ -5,9 +5,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kalmansfm.errors import InvalidInputError
+from kalmansfm.structure import PointStatus
 from kalmansfm.structure.pinhole import (
     CameraSet,
-    PointStatus,
     decompose_projection,
     project_points,
     projection_jacobians,

@@ -8,8 +8,7 @@ import scipy.io
 from scipy.spatial.transform import Rotation
 
 from kalmansfm.errors import InvalidInputError
-from kalmansfm.structure import align_affine, factorize, point_uncertainty
-from kalmansfm.structure.uncertainty import PointStatus
+from kalmansfm.structure import PointStatus, align_affine, factorize, point_uncertainty
 from kalmansfm.structure.uncertainty import MAX_STD_RATIO, MIN_VIEWS
 
 HOTEL = Path(__file__).resolve().parents[4] / "shared" / "data" / "cmu_hotel"
@@ -137,6 +136,21 @@ def test_status_rules_views_and_the_uncertainty_bound():
     assert point_uncertainty(rec, x, min_views=3).reliable[0]
     assert MIN_VIEWS == 4
     assert "1 of 40 reconstructed points are unreliable (1 seen in fewer than 4 frames" in u.warnings[0]
+
+
+def test_points_left_out_get_their_reason_and_every_point_its_residual_rms():
+    rng = np.random.default_rng(4)
+    shape = rng.normal(size=(20, 3)) * 50
+    rotations = Rotation.from_rotvec(rng.normal(size=(8, 3)) * 0.3).as_matrix()
+    x = np.einsum("fij,pj->fpi", rotations[:, :2], shape) + 200 + rng.normal(scale=0.3, size=(8, 20, 2))
+    x[1:, 0] = np.nan  # point 0: one view, the factorization leaves it out
+    rec = factorize(x)
+    u = point_uncertainty(rec, x)
+    assert np.isnan(rec.points[0]).all() and u.status[0] == PointStatus.TOO_FEW_VIEWS
+    assert np.isnan(u.reprojection_rms[0]) and u.warnings == ()
+    # the point's RMS is that of the factorization's own residual distances over the frames that saw it
+    expected = np.sqrt(np.nanmean(rec.residuals[:, 1:] ** 2, axis=0))
+    np.testing.assert_allclose(u.reprojection_rms[1:], expected, rtol=1e-12)
 
 
 def test_a_point_seen_while_the_camera_barely_turned_is_unreliable_in_depth():
