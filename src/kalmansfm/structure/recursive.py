@@ -61,7 +61,7 @@ from .calibrated import (
     residual_rms_per_point,
 )
 from .incremental import relative_pose
-from .point_fusion import _iterated_update
+from .point_fusion import iterated_update
 from .points import PointStatus
 from .rotation import cross_matrix
 
@@ -255,10 +255,9 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
         seen_k = idx[np.isfinite(obs[k, idx, 0])]
         if len(seen_k):
             Q = np.broadcast_to(kz[k], (len(seen_k), 3, 4))
-            post, post_cov, accept = _iterated_update(Q, x[seen_k], cov[seen_k] / sigma**2, obs[k, seen_k],
-                                                         sigma, gate)
-            x[seen_k], cov[seen_k] = post, post_cov * sigma**2
-            used[k, seen_k[accept]] = True
+            up = iterated_update(Q, x[seen_k], cov[seen_k] / sigma**2, obs[k, seen_k], sigma, gate)
+            x[seen_k], cov[seen_k] = up.states, up.covariances * sigma**2
+            used[k, seen_k[up.accepted]] = True
         # -- new tracks from the pair, moved into frame k
         new = ~alive[motion.tracks]
         tracks = motion.tracks[new]

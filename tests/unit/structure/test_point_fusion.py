@@ -5,13 +5,15 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 from scipy import stats
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 import kalmansfm.structure.point_fusion as pf
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus
-from kalmansfm.structure.pinhole import CameraSet, project_points
-from kalmansfm.structure.point_fusion import FusionSettings, fuse
+from kalmansfm.structure.pinhole import CameraSet, project_each, project_points
+from kalmansfm.structure.point_fusion import FusionSettings, fuse, iterated_update
 
 
 def nees(errors, covariances):
@@ -165,3 +167,30 @@ def test_bad_arguments_raise_one_clear_error():
         fuse(once, s.cameras)
     with pytest.raises(InvalidInputError, match="chunk_points"):
         FusionSettings(chunk_points=0)
+
+
+def test_the_iterated_update_reaches_the_map_estimate_and_the_gate_keeps_the_prior():
+    """The IEKF's fixed point minimises (θ - θ̂)ᵀ P⁻¹ (θ - θ̂) + |z - h(θ)|² (unit σ): solved here by least squares."""
+    rng = np.random.default_rng(7)
+    n = 6
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    R = Rotation.from_rotvec(rng.normal(size=(n, 3)) * 0.2).as_matrix()
+    Q = np.einsum("ij,njk->nik", K, np.concatenate([R, rng.normal(size=(n, 3, 1))], axis=2))
+    truth = rng.uniform([-1, -1, 4], [1, 1, 6], size=(n, 3))
+    a = rng.normal(size=(n, 3, 3)) * 0.3
+    P = a @ a.transpose(0, 2, 1) + 0.05 * np.eye(3)
+    prior = truth + np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.normal(size=(n, 3))) * 0.5
+    z = project_each(Q, truth)[0] + rng.normal(size=(n, 2))
+    up = iterated_update(Q, prior, P, z, pixel_std=1.0, gate=1e9)
+    assert up.accepted.all()
+    for k in range(n):
+        L_inv = np.linalg.inv(np.linalg.cholesky(P[k]))
+
+        def residuals(th, k=k, L_inv=L_inv):
+            return np.concatenate([L_inv @ (th - prior[k]), z[k] - project_each(Q[k], th)[0]])
+
+        best = least_squares(residuals, prior[k], xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+        np.testing.assert_allclose(up.states[k], best, atol=1e-6 * np.sqrt(P[k].diagonal()).max())
+    # a tight gate rejects them all and leaves the prior untouched
+    tight = iterated_update(Q, prior, P, z + 1e3, pixel_std=1.0, gate=13.8)
+    assert not tight.accepted.any() and np.array_equal(tight.states, prior) and np.array_equal(tight.covariances, P)
