@@ -28,9 +28,11 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 
+from kalmansfm.io.oxford import read_oxford
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.bundle import (
     ObservationList,
@@ -39,9 +41,10 @@ from kalmansfm.structure.bundle import (
     reprojection_residuals,
 )
 from kalmansfm.structure.perspective import reconstruct_perspective
+from kalmansfm.structure.pinhole import decompose_projection
 from kalmansfm.structure.rotation import rotation_exp
 
-from real_data_perspective import load  # the Oxford reader of the sibling script (benchmarks/ is on sys.path)
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
 
 def cost(problem, R, C, X) -> float:
@@ -62,7 +65,8 @@ def synthetic(strength: float, seed: int = 0) -> dict:
 
 
 def oxford_house() -> dict:
-    data, pose = load("oxford_model_house")
+    data = read_oxford(DATA / "oxford_model_house")
+    pose = decompose_projection(data.cameras.matrices)
     K = pose.intrinsics
     rec = reconstruct_perspective(data.observations, K)
     obs = ObservationList.from_dense(data.observations, rec.inliers)

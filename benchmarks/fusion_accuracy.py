@@ -5,7 +5,7 @@ Usage::
     python benchmarks/fusion_accuracy.py
 
 1. Oxford VGG Model House and Merton College I (``../shared/data``), with the datasets' own
-   cameras, read through ``examples/oxford_to_csv.py``: the fused points against the datasets'
+   cameras, read by ``kalmansfm.io.oxford.read_oxford``: the fused points against the datasets'
    own 3-D points (their maximum-likelihood points for those cameras), the estimated pixel noise,
    the rejected observations, and the nested-estimate check — each point's two-view estimate
    minus its final one, judged by Σ_two-view − Σ_final.  That difference has rank 2 after one
@@ -19,27 +19,18 @@ Usage::
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 from scipy import stats
 
+from kalmansfm.io.oxford import read_oxford
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure.point_fusion import FUSION_METHODS, fuse
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"
-
-
-def oxford_loader():
-    spec = importlib.util.spec_from_file_location("oxford_to_csv", ROOT / "examples" / "oxford_to_csv.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module.load_oxford
 
 
 def nees(e: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -63,13 +54,12 @@ def nested_nees(fused) -> dict[int, tuple[float, int]]:
 
 
 def oxford() -> None:
-    load = oxford_loader()
     print("## Oxford data with their own cameras (σ = auto, outlier probability 0.999)")
     print("| data | method | median ‖fused − dataset‖ / radius | max | pixel σ (px) | rejected / observations "
           "| nested NEES median, χ²(2) [n] | χ²(3) [n] | seconds |")
     print("|---|---|---|---|---|---|---|---|---|")
     for name in ("oxford_model_house", "oxford_merton1"):
-        d = load(DATA / name)
+        d = read_oxford(DATA / name)
         radius = np.median(np.linalg.norm(d.points - np.median(d.points, axis=0), axis=1))
         for method in FUSION_METHODS:
             start = time.perf_counter()

@@ -23,10 +23,8 @@ the viewing distance.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -35,6 +33,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from kalmansfm.errors import NotEnoughDataError
+from kalmansfm.io.oxford import read_oxford
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.alignment import align_similarity
 from kalmansfm.structure.bundle import compare_in_gauge
@@ -46,11 +45,7 @@ DATA = ROOT / ".." / "shared" / "data"
 
 
 def load(name: str):
-    spec = importlib.util.spec_from_file_location("oxford_to_csv", ROOT / "examples" / "oxford_to_csv.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    data = module.load_oxford(DATA / name)
+    data = read_oxford(DATA / name)
     pose = decompose_projection(data.cameras.matrices)
     return data, pose
 

@@ -11,16 +11,10 @@ from kalmansfm.io import load_run, read_summary
 from kalmansfm.io.cameras import MATRIX_COLUMNS, cameras_csv
 from kalmansfm.io.fusion import HISTORY_COLUMNS, REJECTED_COLUMNS
 from kalmansfm.io.structure import STRUCTURE_COLUMNS, read_points_table
+from kalmansfm.io.tracks import observations_csv
 from kalmansfm.report import build_report
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure.pinhole import CameraSet
-
-
-def tracks_text(observations, frames, track_ids=None):
-    v, n = np.nonzero(np.isfinite(observations[..., 0]))
-    ids = np.arange(observations.shape[1]) if track_ids is None else np.asarray(track_ids)
-    rows = [f"{frames[a]},{ids[b]},{x!r},{y!r}" for a, b, (x, y) in zip(v, n, observations[v, n].tolist())]
-    return "frame,track_id,x,y\n" + "\n".join(rows) + "\n"
 
 
 @pytest.fixture
@@ -29,7 +23,7 @@ def scene_files(tmp_path):
     frames = np.array([10, 11, 12, 13, 14])
     cams = CameraSet(s.cameras.matrices, frames)
     (tmp_path / "cameras.csv").write_text(cameras_csv(cams))
-    (tmp_path / "tracks.csv").write_text(tracks_text(s.observations, frames, np.arange(60) + 100))
+    (tmp_path / "tracks.csv").write_text(observations_csv(s.observations, frames, np.arange(60) + 100))
     return s, tmp_path
 
 
@@ -101,7 +95,7 @@ def test_points_behind_every_camera_get_a_status(tmp_path, capsys):
                           / np.stack([s.cameras.matrices[v, 2, :3] @ behind + s.cameras.matrices[v, 2, 3]
                                       for v in range(4)])[:, None, None]], axis=1)
     (tmp_path / "cameras.csv").write_text(cameras_csv(s.cameras))
-    (tmp_path / "tracks.csv").write_text(tracks_text(obs, s.cameras.frames))
+    (tmp_path / "tracks.csv").write_text(observations_csv(obs, s.cameras.frames))
     assert main(fuse_args(tmp_path, "--pixel-std", "0.3")) == 0
     last = (tmp_path / "run" / "structure.csv").read_text().splitlines()[-1].split(",")
     assert last[0] == "20" and last[-1] == "behind_camera" and last[1] == ""  # no value: an empty cell
@@ -166,10 +160,10 @@ def test_pixel_std_auto_without_redundancy_is_one_line(tmp_path, capsys):
     obs[0] = s.observations[0]
     obs[1, 0] = s.observations[1, 0]  # one point in two views: 4 observations, 3 unknowns, 1 dof
     (tmp_path / "cameras.csv").write_text(cameras_csv(s.cameras))
-    (tmp_path / "tracks.csv").write_text(tracks_text(obs, s.cameras.frames))
+    (tmp_path / "tracks.csv").write_text(observations_csv(obs, s.cameras.frames))
     assert main(fuse_args(tmp_path)) == 0  # one degree of freedom is enough to estimate σ
     obs[1, 0], obs[0, 3], obs[1, 3] = np.nan, np.nan, s.observations[1, 3]  # every point seen once
-    (tmp_path / "tracks.csv").write_text(tracks_text(obs, s.cameras.frames))
+    (tmp_path / "tracks.csv").write_text(observations_csv(obs, s.cameras.frames))
     shutil.rmtree(tmp_path / "run")
     assert main(fuse_args(tmp_path)) == 2
     assert "pixel_std='auto' needs" in capsys.readouterr().err

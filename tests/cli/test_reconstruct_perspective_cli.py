@@ -8,15 +8,14 @@ from kalmansfm.io import load_run, read_summary
 from kalmansfm.io.intrinsics import intrinsics_csv
 from kalmansfm.io.perspective import CAMERA_POSE_COLUMNS, read_perspective_cameras
 from kalmansfm.io.structure import STRUCTURE_COLUMNS
+from kalmansfm.io.tracks import observations_csv
 from kalmansfm.report import build_report
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.alignment import align_similarity
 
 
 def tracks_text(observations, frames):
-    v, n = np.nonzero(np.isfinite(observations[..., 0]))
-    rows = [f"{frames[a]},{b + 500},{x!r},{y!r}" for a, b, (x, y) in zip(v, n, observations[v, n].tolist())]
-    return "frame,track_id,x,y\n" + "\n".join(rows) + "\n"
+    return observations_csv(observations, np.asarray(frames), np.arange(observations.shape[1]) + 500)
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ project's readers, as a user's would.  Source: Visual Geometry Group, University
 Oxford, multi-view data (``../shared/data/oxford_model_house``, ``oxford_merton1``).
 """
 
-import importlib.util
+import subprocess
 import sys
 from pathlib import Path
 
@@ -23,18 +23,16 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / ".." / "shared" / "data"
 
 
-def converter():
-    spec = importlib.util.spec_from_file_location("oxford_to_csv", ROOT / "examples" / "oxford_to_csv.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+def convert(name, out):
+    """Run the documented converter, as a user would."""
+    subprocess.run([sys.executable, str(ROOT / "examples" / "oxford_to_csv.py"), str(DATA / name), str(out)],
+                   check=True, capture_output=True)
 
 
 @pytest.fixture(scope="module", params=["oxford_model_house", "oxford_merton1"])
 def dataset(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
-    converter().convert(DATA / request.param, out)
+    convert(request.param, out)
     cams = read_cameras(out / "cameras.csv")
     tracks = read_tracks(out / "tracks.csv")
     matched = match_cameras(tracks.observations(), tracks.frames, tracks.track_ids, cams)

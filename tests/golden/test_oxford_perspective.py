@@ -11,7 +11,7 @@ camera centres ≤ 1 %, reprojection RMS ≤ 0.5 px, ≥ 95 % of the points; Mer
 multi-view data (``../shared/data/oxford_model_house``, ``oxford_merton1``).
 """
 
-import importlib.util
+import subprocess
 import sys
 from pathlib import Path
 
@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from kalmansfm.io.intrinsics import intrinsics_csv, read_intrinsics
+from kalmansfm.io.oxford import read_oxford
 from kalmansfm.io.tracks import read_tracks
 from kalmansfm.structure.alignment import align_similarity
 from kalmansfm.structure.pinhole import decompose_projection
@@ -28,20 +29,17 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / ".." / "shared" / "data"
 
 
-def converter():
-    spec = importlib.util.spec_from_file_location("oxford_to_csv", ROOT / "examples" / "oxford_to_csv.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+def convert(name, out):
+    """Run the documented converter, as a user would."""
+    subprocess.run([sys.executable, str(ROOT / "examples" / "oxford_to_csv.py"), str(DATA / name), str(out)],
+                   check=True, capture_output=True)
 
 
 @pytest.fixture(scope="module", params=["oxford_model_house", "oxford_merton1"])
 def run(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
-    oxford = converter()
-    data = oxford.load_oxford(DATA / request.param)
-    oxford.convert(DATA / request.param, out)
+    data = read_oxford(DATA / request.param)
+    convert(request.param, out)
     pose = decompose_projection(data.cameras.matrices)
     (out / "K.csv").write_text(intrinsics_csv(data.cameras.frames, pose.intrinsics))
     tracks = read_tracks(out / "tracks.csv")

@@ -39,13 +39,16 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..tracking.settings import TrackerSettings
 from ..tracking.tracks import LOST, MEASUREMENT_CODES, NO_TRACK, POSITION_CODES, Tracks, TrackStatus
+from ._csv import csv_text, number
 from .npz import load_npz
 from .records import from_json, to_json
 
 __all__ = [
     "MAX_INDEX",
     "TRACK_CSV_COLUMNS",
+    "OBSERVATION_COLUMNS",
     "check_points_inside",
+    "observations_csv",
     "read_points_csv",
     "read_tracks",
     "read_tracks_csv",
@@ -59,7 +62,9 @@ __all__ = [
 MAX_INDEX = 10_000_000
 #: The columns of the tracker's ``tracks.csv``.
 TRACK_CSV_COLUMNS = ("frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y", "status")
-_REQUIRED = ("frame", "track_id", "x", "y")
+#: The least a tracks CSV holds: one measured position per row (what other tools and converters write).
+OBSERVATION_COLUMNS = ("frame", "track_id", "x", "y")
+_REQUIRED = OBSERVATION_COLUMNS
 _NPZ_SCHEMA = 1
 
 
@@ -99,6 +104,36 @@ def tracks_to_csv(tracks: Tracks) -> str:
     for f, i, v, word in zip(frames, ids, values.tolist(), words.tolist()):
         out.write(f"{f},{i},{','.join(_number(x) for x in v)},{word}\n")
     return out.getvalue()
+
+
+def observations_csv(observations: np.ndarray, frames: np.ndarray, track_ids: np.ndarray | None = None) -> str:
+    """``frame,track_id,x,y`` text of every finite position of ``observations``, by frame then track.
+
+    Parameters
+    ----------
+    observations : (F, P, 2) float, x = column, y = row, NaN where not seen.
+    frames : (F,) the frame number of each row; track_ids : (P,) (default 0 … P − 1).
+
+    Numbers are written in full (they read back as the same floats).
+
+    Examples
+    --------
+    >>> obs = np.array([[[1.5, 2.0], [np.nan, np.nan]], [[3.0, 4.25], [5.0, 6.0]]])
+    >>> print(observations_csv(obs, [10, 11], [7, 9]), end="")
+    frame,track_id,x,y
+    10,7,1.5,2.0
+    11,7,3.0,4.25
+    11,9,5.0,6.0
+    """
+    x = np.asarray(observations, dtype=np.float64)
+    f = np.asarray(frames)
+    ids = np.arange(x.shape[1]) if track_ids is None else np.asarray(track_ids)
+    if x.ndim != 3 or x.shape[2] != 2 or f.shape != x.shape[:1] or ids.shape != x.shape[1:2]:
+        raise InvalidInputError(f"need observations (F, P, 2), frames (F,) and track_ids (P,); "
+                                f"got {x.shape}, {f.shape} and {ids.shape}")
+    v, n = np.nonzero(np.isfinite(x).all(axis=2))
+    rows = ([int(a), int(b), number(px), number(py)] for a, b, (px, py) in zip(f[v], ids[n], x[v, n].tolist()))
+    return csv_text(OBSERVATION_COLUMNS, rows)
 
 
 def write_tracks_csv(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
