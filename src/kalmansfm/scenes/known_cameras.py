@@ -6,6 +6,12 @@ views, its projections get Gaussian pixel noise, and a chosen fraction of the
 observations is replaced by gross mismatches (uniformly placed 20-80 px away).
 Everything is drawn from one seeded generator, so a scene is reproducible from
 its parameters.
+
+It is not :mod:`.perspective`'s walk-around: visibility here is a random subset of
+the views (every point in its first two), with no image border, exact aiming and the
+image turned the other way; the fusion figures of ``docs/fusion.md`` were measured on
+these draws.  The arc of centres, the look-at rotation and the mismatches are shared
+(:mod:`._arc`).
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from .._validation import check_count, check_positive
 from ..structure.pinhole import CameraSet, project_points
+from ._arc import arc_centres, look_at, mismatches
 
 __all__ = ["KnownCameraScene", "known_camera_scene"]
 
@@ -82,17 +89,9 @@ def known_camera_scene(
     rng = np.random.default_rng(check_count("seed", seed, 0))
     X = rng.uniform(-1.0, 1.0, size=(n, 3))
     angles = np.linspace(-arc / 2, arc / 2, v)
-    radius = 6.0
-    R = np.empty((v, 3, 3))
-    t = np.empty((v, 3))
-    for i, a in enumerate(angles):  # one 3 × 3 pose per view, not per point
-        centre = np.array([radius * np.sin(a), 0.5 * np.sin(3 * a), -radius * np.cos(a)])
-        forward = -centre / np.linalg.norm(centre)
-        right = np.cross([0.0, 1.0, 0.0], forward)
-        right /= np.linalg.norm(right)
-        down = np.cross(forward, right)
-        R[i] = np.stack([right, down, forward])
-        t[i] = -R[i] @ centre
+    centres = arc_centres(angles, 6.0, 0.5)
+    R = look_at(centres, np.zeros((v, 3)), up=(0.0, 1.0, 0.0))  # aimed at the origin, image y along +Y
+    t = -(R @ centres[:, :, None])[:, :, 0]
     K = np.array([[_FOCAL, 0.0, _IMAGE_SIZE[0] / 2], [0.0, _FOCAL, _IMAGE_SIZE[1] / 2], [0.0, 0.0, 1.0]])
     cameras = CameraSet.from_pose(K, R, t)
     clean = project_points(cameras, X).pixels
@@ -101,8 +100,5 @@ def known_camera_scene(
     seen[:2] = True
     obs[~seen] = np.nan
     outliers = seen & (rng.random((v, n)) < outlier_fraction)
-    k = int(outliers.sum())
-    angle = rng.uniform(0, 2 * np.pi, k)
-    distance = rng.uniform(20.0, 80.0, k)
-    obs[outliers] = clean[outliers] + np.stack([np.cos(angle), np.sin(angle)], axis=1) * distance[:, None]
+    obs[outliers] = clean[outliers] + mismatches(rng, int(outliers.sum()), 20.0, 80.0)
     return KnownCameraScene(cameras, X, obs, outliers, sigma)

@@ -7,7 +7,9 @@ its projections get Gaussian pixel noise, and a chosen fraction of the
 observations is replaced by gross mismatches.  Two degenerate variants exist
 for tests: all points on one plane, and a camera that only rotates.  One
 seeded generator draws everything, so a scene is reproducible from its
-parameters.
+parameters.  (:mod:`.known_cameras` draws the other synthetic perspective scene, for
+fusion with known cameras; the two share the arc, the look-at rotation and the
+mismatches, :mod:`._arc`.)
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_count, check_positive
+from ._arc import arc_centres, look_at, mismatches
 
 __all__ = ["PerspectiveScene", "perspective_scene"]
 
@@ -48,14 +51,6 @@ class PerspectiveScene:
     pixel_std: float
     viewing_distance: float
     image_size: tuple[int, int]
-
-
-def _look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """World → camera rotation of a camera at ``centre`` looking at ``target``, image y pointing down (−Y)."""
-    forward = (target - centre) / np.linalg.norm(target - centre)
-    right = np.cross([0.0, -1.0, 0.0], forward)
-    right /= np.linalg.norm(right)
-    return np.stack([right, np.cross(forward, right), forward])
 
 
 def perspective_scene(
@@ -122,14 +117,15 @@ def perspective_scene(
     if layout == "planar":
         X[:, 2] = 0.0
     angles = np.linspace(-arc / 2, arc / 2, F)
-    arc_points = np.stack([radius * np.sin(angles), 0.3 * np.sin(3 * angles), -radius * np.cos(angles)], axis=1)
+    arc_points = arc_centres(angles, radius, 0.3)
     if layout == "rotation":
         centres = np.repeat(arc_points[F // 2][None], F, axis=0)
         targets = arc_points[F // 2] + (np.zeros(3) - arc_points) * 1.0
     else:
         centres = arc_points
         targets = np.zeros((F, 3))
-    rotations = np.stack([_look_at(c, t + rng.normal(0.0, 0.05, 3)) for c, t in zip(centres, targets)])
+    # image y pointing down (world −Y up), each camera aimed a little off the target
+    rotations = look_at(centres, targets + rng.normal(0.0, 0.05, (F, 3)), up=(0.0, -1.0, 0.0))
     K = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
     x_cam = np.einsum("fij,fpj->fpi", rotations, X[None] - centres[:, None])
     clean = f * x_cam[..., :2] / x_cam[..., 2:3] + K[:2, 2]
@@ -141,10 +137,7 @@ def perspective_scene(
     frame = np.arange(F)[:, None]
     seen = inside & (frame >= start) & (frame < start + length)
     outliers = seen & (rng.random((F, P)) < outlier_fraction)
-    k = int(outliers.sum())
-    angle = rng.uniform(0.0, 2.0 * np.pi, k)
-    offset = rng.uniform(8.0, 60.0, k)
-    obs[outliers] = clean[outliers] + np.stack([np.cos(angle), np.sin(angle)], axis=1) * offset[:, None]
+    obs[outliers] = clean[outliers] + mismatches(rng, int(outliers.sum()), 8.0, 60.0)
     obs[~seen] = np.nan
     viewing = float(np.mean(np.linalg.norm(centres - X.mean(axis=0), axis=1)))
     return PerspectiveScene(obs, np.repeat(K[None], F, axis=0), rotations, centres, X, outliers, sigma,
