@@ -134,7 +134,8 @@ class FusionMetrics:
     ----------
     method : ``"recursive"``, ``"batch"`` or ``"pairs"``.
     cameras : views fused (frames with both a camera and observations).
-    points : tracks read; ``fused``, ``too_few_views``, ``degenerate``, ``behind_camera`` count them by status.
+    points : tracks read; ``fused`` (status ``ok``), ``too_few_views``, ``degenerate``, ``behind_camera`` count
+        them by :class:`~kalmansfm.structure.PointStatus`.
     observations : measured positions in the fused views; ``rejected`` of them were outliers.
     pixel_std_px : the image noise σ the covariances use; ``pixel_std_estimated`` when it came from
         the residuals (2 degrees of freedom per observation minus 3 per point, after rejection).
@@ -177,7 +178,8 @@ class PerspectiveMetrics:
     intrinsics : where K came from (a K.csv, or the focal length and image size).
     frames, registered_frames : frames of the tracks and how many got a pose; ``unregistered``
         lists the others (frame numbers).
-    points : tracks read; ``reconstructed``, ``too_few_views``, ``degenerate`` count them by status.
+    points : tracks read; ``reconstructed`` (status ``ok``), ``too_few_views``, ``degenerate`` count them by
+        :class:`~kalmansfm.structure.PointStatus`.
     observations, inliers : measured positions in the frames, and those used in the final estimate.
     pixel_std_px : σ of the image noise from the inlier residuals (degrees of freedom counted).
     reprojection_rms_px : RMS length of the 2-D reprojection errors over the inliers.
