@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import NotEnoughDataError, ReportInterrupted
-from ..io.atomic import atomic_write, check_output_directory, output_directory
-from ..io.frames import read_frames, stage_frames
-from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
+from ..errors import NotEnoughDataError
+from ..io.atomic import output_directory
+from ..io.frames import FrameSource, read_frames, stage_frames
+from ..io.summary import SUMMARY_FILE, RunSource, RunSummary, run_source, summary_json
 from ..report.drawing import track_colors
 from ..report.html import build_report
 from ..scenes import Scene, render_scene
@@ -27,7 +27,7 @@ from ..tracking import TrackerSettings, Tracks, smooth_tracks, track
 from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, tracking_metrics
 from .stage import Stopwatch, stage_structure, stage_summary, stage_tracking
 
-__all__ = ["DemoRun", "describe", "run_demo"]
+__all__ = ["DemoRun", "demo_source", "describe", "run_demo"]
 
 log = logging.getLogger("kalmansfm")
 
@@ -55,9 +55,40 @@ class DemoRun:
     scene: Scene | None = field(default=None, repr=False)
 
 
-def _load_frames(input: str | os.PathLike[str]) -> list[np.ndarray]:
-    frames = [np.asarray(f) for f in read_frames(input)]
+def _load_frames(sequence: FrameSource) -> list[np.ndarray]:
+    frames = [np.asarray(f) for f in sequence]
     return [f if f.dtype == np.uint8 else np.clip(np.rint(f), 0, 255).astype(np.uint8) for f in frames]
+
+
+def demo_source(
+    sequence: FrameSource | None,
+    *,
+    seed: int = 0,
+    n_frames: int = 30,
+    points: np.ndarray | None = None,
+    track_ids: np.ndarray | None = None,
+    settings: TrackerSettings | None = None,
+    weighted: bool = True,
+    smooth: bool = True,
+    save_frames: bool = True,
+    html: bool = True,
+) -> RunSource:
+    """What a :func:`run_demo` of these arguments is made from (its ``summary.source``).
+
+    ``sequence`` is the footage (:func:`~kalmansfm.io.read_frames`), or None for the
+    built-in scene of ``seed`` and ``n_frames``.  ``batch`` compares it with a finished
+    run's before it keeps that run instead of computing it again.
+
+    Examples
+    --------
+    >>> demo_source(None, seed=1) == demo_source(None, seed=1), demo_source(None, seed=1) == demo_source(None, seed=2)
+    (True, False)
+    """
+    options = {"settings": settings or TrackerSettings(), "weighted": weighted, "smooth": smooth,
+               "save_frames": save_frames, "html": html, "points": points, "track_ids": track_ids}
+    if sequence is None:
+        return run_source("built-in scene", [], {**options, "seed": seed, "n_frames": n_frames})
+    return run_source(sequence.description, sequence.paths, options)
 
 
 def run_demo(
@@ -80,7 +111,8 @@ def run_demo(
 
     Parameters
     ----------
-    out_dir : the run folder (created; earlier results are replaced only when the run succeeds).
+    out_dir : the run folder: new, empty or an earlier run, which is replaced whole (report
+        included) only when this run succeeds (:func:`~kalmansfm.io.output_directory`).
     input : a folder of images, a glob or a video; None renders the built-in scene
         (:func:`kalmansfm.scenes.render_scene` with ``seed`` and ``n_frames``),
         whose frame-0 corners are the points tracked and whose ground truth is compared.
@@ -108,51 +140,56 @@ def run_demo(
     >>> run.summary.truth.tracking_rms_error_px < 0.5
     True
     """
-    check_output_directory(out_dir)  # before the work, not after it
-    clock = Stopwatch()
-    scene = None
-    with clock.step("frames"):
-        if input is None:
-            scene = render_scene(n_frames=n_frames, seed=seed)
-            frames = [np.asarray(f) for f in scene.frames]
-            first_visible = scene.visible[0]
-            points = scene.positions[0, first_visible]
-            track_ids = scene.track_ids[first_visible]
-            source = scene_description(scene)
-        else:
-            frames = _load_frames(input)
-            source = str(input)
-    with clock.step("tracking"):
-        tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
-    if smooth:
-        with clock.step("smoothing"):
-            tracks = smooth_tracks(tracks)
+    with output_directory(out_dir, inputs=[input]) as out:
+        clock = Stopwatch()
+        scene = None
+        options = {"points": points, "track_ids": track_ids, "settings": settings, "weighted": weighted,
+                   "smooth": smooth, "save_frames": save_frames, "html": html}
+        with clock.step("frames"):
+            if input is None:
+                source = demo_source(None, seed=seed, n_frames=n_frames, **options)
+                scene = render_scene(n_frames=n_frames, seed=seed)
+                frames = [np.asarray(f) for f in scene.frames]
+                first_visible = scene.visible[0]
+                points = scene.positions[0, first_visible]
+                track_ids = scene.track_ids[first_visible]
+                description = scene_description(scene)
+            else:
+                sequence = read_frames(input)
+                source = demo_source(sequence, **options)
+                frames = _load_frames(sequence)
+                description = str(input)
+        with clock.step("tracking"):
+            tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
+        if smooth:
+            with clock.step("smoothing"):
+                tracks = smooth_tracks(tracks)
 
-    reconstruction: Reconstruction | None = None
-    structure_error = None
-    with clock.step("factorization"):
-        try:
-            reconstruction = factorize_tracks(tracks, weighted=weighted)
-        except NotEnoughDataError as exc:
-            structure_error = str(exc)
-            log.warning("factorization skipped: %s", exc)
-    truth = None
-    if scene is not None:
-        truth = compare_with_truth(tracks, reconstruction, scene.ground_truth())
+        reconstruction: Reconstruction | None = None
+        structure_error = None
+        with clock.step("factorization"):
+            try:
+                reconstruction = factorize_tracks(tracks, weighted=weighted)
+            except NotEnoughDataError as exc:
+                structure_error = str(exc)
+                log.warning("factorization skipped: %s", exc)
+        truth = None
+        if scene is not None:
+            truth = compare_with_truth(tracks, reconstruction, scene.ground_truth())
 
-    summary = RunSummary(
-        command=command,
-        input=source,
-        settings=tracks.settings,
-        smoothed=tracks.smoothed,
-        tracking=tracking_metrics(tracks),
-        structure=None if reconstruction is None else structure_metrics(reconstruction, weighted=weighted,
-                                                                         smoothed=tracks.smoothed),
-        structure_error=structure_error,
-        truth=truth,
-        scene=None if scene is None else scene.parameters,
-    )
-    with output_directory(out_dir) as out:
+        summary = RunSummary(
+            command=command,
+            input=description,
+            source=source,
+            settings=tracks.settings,
+            smoothed=tracks.smoothed,
+            tracking=tracking_metrics(tracks),
+            structure=None if reconstruction is None else structure_metrics(reconstruction, weighted=weighted,
+                                                                             smoothed=tracks.smoothed),
+            structure_error=structure_error,
+            truth=truth,
+            scene=None if scene is None else scene.parameters,
+        )
         with clock.step("writing"):
             names = stage_frames(out, frames, "frames/") if save_frames else []
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
@@ -162,22 +199,14 @@ def run_demo(
             if scene is not None:
                 names += stage_ground_truth(out, scene)
         summary = stage_summary(out, summary, clock, names)
-
-    report = None
-    # An earlier run's report describes results that were just replaced: remove it, so that
-    # an interrupt while the new one is built leaves no report rather than a wrong one.
-    (Path(out_dir) / "report.html").unlink(missing_ok=True)
-    if html:
-        with clock.step("report"):
-            try:
-                report = build_report(out_dir, progress=progress)
-            except KeyboardInterrupt:
-                raise ReportInterrupted(
-                    f"the new results are in {out_dir}, without report.html; run 'kalmansfm report {out_dir}'"
-                ) from None
-        # the report's time goes into the one timing record (summary.json is replaced atomically)
-        summary = replace(summary, timings_s=clock.timings, total_s=clock.total())
-        atomic_write(Path(out_dir) / SUMMARY_FILE, lambda p: p.write_text(summary_json(summary), encoding="utf-8"))
+        report = None
+        if html:
+            # built from the staged run, so the folder gets its report together with its results
+            with clock.step("report"):
+                report = build_report(out.staging, progress=progress, shown_as=out.path)
+            # the report's time goes into the one timing record
+            summary = replace(summary, timings_s=clock.timings, total_s=clock.total())
+            out.write_text(SUMMARY_FILE, summary_json(summary))
     return DemoRun(Path(out_dir), tracks, reconstruction, summary, report, scene)
 
 
@@ -204,7 +233,7 @@ def describe(run: DemoRun) -> str:
         if truth is not None and truth.shape_error_pct is not None:
             line += f"; shape error {truth.shape_error_pct:.2f} % of the object radius"
         lines.append(line)
-        lines.extend(f"warning: {w}" for w in f.warnings)
+    lines.extend(f"warning: {w}" for w in s.all_warnings)
     lines.append(f"time: {s.total_s:.1f} s")
     lines.append(f"report: {run.report}" if run.report is not None else f"results: {run.out_dir}")
     return "\n".join(lines)

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from .._version import __version__
 from ..errors import InvalidInputError
-from ..io.atomic import check_output_directory, output_directory
-from ..io.summary import RunSummary
+from ..io.atomic import output_directory
+from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..structure import Reconstruction
 from ..tracking import Tracks, smooth_tracks
@@ -92,7 +92,7 @@ def run_reconstruct(
     Parameters
     ----------
     tracks_path : ``tracks.npz``, ``tracks.csv`` or a ``frame,track_id,x,y`` CSV.
-    out_dir : the run folder.
+    out_dir : the run folder: new, empty or an earlier run, replaced whole when this run succeeds.
     weighted : weight observations by 1 / σ² when the file has standard deviations.
     smooth : see :func:`read_tracks_for_factorization`.
     max_iterations : cap on the missing-data refinement iterations.
@@ -109,20 +109,20 @@ def run_reconstruct(
     >>> round(run.summary.structure.residual_rms_px, 2)
     2.88
     """
-    check_output_directory(out_dir)
-    clock = Stopwatch()
-    tracks = read_tracks_for_factorization(tracks_path, smooth=smooth)
-    has_weights = weighted and tracks.covariances is not None
-    log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
-    with clock.step("factorization"):
-        reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
-    summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
-                         smoothed=tracks.smoothed,
-                         structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed))
-    name = Path(tracks_path).name
-    with output_directory(out_dir) as out:
+    with output_directory(out_dir, inputs=[tracks_path]) as out:
+        clock = Stopwatch()
+        tracks = read_tracks_for_factorization(tracks_path, smooth=smooth)
+        source = run_source(tracks_path, [tracks_path], {"weighted": weighted, "smooth": smooth,
+                                                         "max_iterations": max_iterations, "plot": plot})
+        has_weights = weighted and tracks.covariances is not None
+        log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
+        with clock.step("factorization"):
+            reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
+        summary = RunSummary(command="reconstruct", input=str(tracks_path), source=source, settings=tracks.settings,
+                             smoothed=tracks.smoothed,
+                             structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed))
         with clock.step("writing"):
             names = stage_structure(out, reconstruction, tracks.track_ids, frames=tracks.frames,
-                                    comment=f"kalmansfm {__version__} from {name}", plot=plot)
+                                    comment=f"kalmansfm {__version__} from {Path(tracks_path).name}", plot=plot)
         summary = stage_summary(out, summary, clock, names)
     return ReconstructRun(Path(out_dir), tracks, reconstruction, summary)
