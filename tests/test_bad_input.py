@@ -38,6 +38,7 @@ CASES = [
     ("track", "{d}/empty --out {out}", "empty holds no image files"),
     ("track", "{d}/text_as_png --out {out}", "text_as_png/f0.png is not a readable image"),
     ("track", "{d}/truncated --out {out}", "truncated/f1.png is not a readable image"),
+    ("track", "{d}/truncated_large --out {out}", "truncated_large/f1.png is not a readable image"),
     ("track", "{d}/broken.mp4 --out {out}", "broken.mp4 is not a decodable video"),
     ("track", "{d}/sizes --out {out}", "sizes/f2.png is 150×100 but f0.png is 160×120"),
     ("track", "{d}/one_frame --out {out}", "one_frame holds 1 image(s)"),
@@ -118,6 +119,7 @@ CASES = [
     ("report", "{d}/run_bad_npz", "run_bad_npz/tracks.npz: positions must be a numeric (frames, points, 2) array"),
     ("report", "{d}/run_bad_structure", "run_bad_structure/structure.csv, line 2: column 'Y' must be a number"),
     ("report", "{d}/run_bad_json --name ../escape.html", "out_name must be a plain file name"),
+    ("report", "{d}/run_bad_frame", "run_bad_frame/frames/frame_000.png: cannot be read as a PNG image"),
     ("report", "{d}/run_ok --name summary.json", "--name summary.json would overwrite the run's own summary.json"),
     ("report", "{d}/run_ok --name tracks.csv", "--name tracks.csv would overwrite the run's own tracks.csv"),
     ("report", "{d}/run_ok --name notes.txt", "--name must end in .html"),
@@ -193,6 +195,9 @@ def bad_inputs(tmp_path_factory) -> Path:
     folder("empty", {})
     folder("text_as_png", {f"f{k}.png": b"this is text, not a picture\n" for k in range(3)})
     folder("truncated", {"f0.png": frames[0], "f1.png": frames[1][: len(frames[1]) // 2], "f2.png": frames[2]})
+    # a frame cut inside its image data: libpng itself prints "PNG input buffer is incomplete"
+    large = [_png(f) for f in render_scene(n_frames=3).frames]
+    folder("truncated_large", {"f0.png": large[0], "f1.png": large[1][: len(large[1]) // 2], "f2.png": large[2]})
     folder("sizes", {"f0.png": frames[0], "f1.png": frames[1], "f2.png": _png(scene.frames[2][:100, :150])})
     folder("one_frame", {"f0.png": frames[0]})
     (d / "broken.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(300))
@@ -239,6 +244,8 @@ def bad_inputs(tmp_path_factory) -> Path:
     np.savez(d / "run_bad_npz" / "tracks.npz", positions=np.zeros((3, 4, 3)), status=np.zeros((3, 4), np.int8),
              track_ids=np.arange(4))
     folder("run_bad_structure", {"summary.json": summary("structure.csv"), "structure.csv": b"track_id,X,Y,Z\n1,2,abc,4\n"})
+    folder("run_bad_frame", {"summary.json": summary("frames/frame_000.png")})
+    folder("run_bad_frame/frames", {"frame_000.png": large[1][: len(large[1]) // 2]})
     folder("run_ok", {"summary.json": summary("tracks.csv"), "tracks.csv": b"frame,track_id,x,y\n0,1,2,3\n"})
     folder("not_a_run", {"notes.txt": b"the user's own file\n"})
     folder("run_with_notes", {"summary.json": summary("tracks.csv"), "tracks.csv": b"frame,track_id,x,y\n0,1,2,3\n",
@@ -297,6 +304,8 @@ def test_bad_input_is_refused_in_one_line_and_nothing_is_written(
     "arguments, fragment",
     [
         ("track {d}/truncated --out {out} --quiet", "truncated/f1.png is not a readable image"),
+        ("track {d}/truncated_large --out {out} --quiet", "truncated_large/f1.png is not a readable image"),
+        ("report {d}/run_bad_frame --quiet", "frame_000.png: cannot be read as a PNG image"),
         ("track {d}/broken.mp4 --out {out} --quiet", "broken.mp4 is not a decodable video"),
         ("reconstruct {d}/tracks_nan.csv --out {out} --quiet", "line 3: y must be finite"),
         ("batch scene:1 --out {out} --workers 0 --quiet", "--workers must be >= 1"),
