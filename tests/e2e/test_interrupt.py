@@ -26,6 +26,11 @@ from kalmansfm.pipeline import stage
 SRC = Path(__file__).resolve().parents[2] / "src"
 
 
+def _default_sigint() -> None:
+    """In a child process: Ctrl-C acts even when the tests run in the background (which ignores SIGINT)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _snapshot(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
@@ -147,7 +152,7 @@ def test_a_signal_to_a_real_process_while_it_writes_leaves_the_earlier_run_and_n
     before = _snapshot(run_folder)
     marker = tmp_path / "writing"
     process = subprocess.Popen(
-        [sys.executable, "-c", SLOW_WRITE, str(marker), str(run_folder)],
+        [sys.executable, "-c", SLOW_WRITE, str(marker), str(run_folder)], preexec_fn=_default_sigint,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONPATH": str(SRC)},
     )
@@ -200,7 +205,7 @@ def test_ctrl_c_early_in_a_real_process_prints_no_traceback(delay_s, tmp_path):
     out = tmp_path / "run"
     process = subprocess.Popen(
         [sys.executable, "-m", "kalmansfm", "demo", "--out", str(out), "--frames", "5", "--quiet"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=_default_sigint, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONPATH": str(SRC)},
     )
     time.sleep(delay_s)
@@ -231,3 +236,24 @@ def test_a_full_disk_names_the_file_in_one_line_and_keeps_the_earlier_run(run_fo
     assert err.splitlines() == [f"kalmansfm demo: error: {run_folder / 'tracks.npz'}: No space left on device"]
     assert _snapshot(run_folder) == before
     assert _leftovers(run_folder) == []
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGTERM to a child process is POSIX")
+def test_sigterm_during_track_cleans_up_like_ctrl_c(tmp_path):
+    """Issue 20.5: a job killer's SIGTERM left .tracks.csv.*.tmp files that piled up, one set per kill."""
+    scene = tmp_path / "scene"
+    assert main(["scene", "--out", str(scene), "--frames", "40", "--quiet"]) == 0
+    out = tmp_path / "tracks"
+    for _ in range(2):  # two kills, as in the report
+        process = subprocess.Popen(
+            [sys.executable, "-m", "kalmansfm", "track", str(scene), "--out", str(out), "--smooth"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "PYTHONPATH": str(SRC)},
+        )
+        shown = b""
+        while b"tracking" not in shown and process.poll() is None:  # the progress bar: tracking has begun
+            shown += os.read(process.stderr.fileno(), 64)
+        process.send_signal(signal.SIGTERM)
+        err = (shown + process.communicate(timeout=60)[1]).decode()
+        assert process.returncode == 143, err
+        assert err.rstrip("\n").splitlines()[-1] == "kalmansfm track: terminated; earlier results were left as they were"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]

@@ -48,6 +48,20 @@ def _commits() -> tuple[int, object]:
     return last_commit() if last_commit is not None else (0, None)
 
 
+def _close_progress_bars() -> None:
+    """Erase the progress bars an error or interrupt left open, so that our one line starts the line.
+
+    A bar interrupted while it was being drawn does not always erase itself when closed;
+    then the line is returned to (and on a terminal cleared) by hand.
+    """
+    bar_class = getattr(sys.modules.get("tqdm"), "tqdm", None)
+    shown = [bar for bar in list(getattr(bar_class, "_instances", ())) if not getattr(bar, "disable", True)]
+    for bar in shown:
+        bar.close()
+    if shown:
+        sys.stderr.write("\r\033[K" if sys.stderr.isatty() else "\r")
+
+
 def _interrupt_message(exc: KeyboardInterrupt, commits_before: int) -> str:
     """What is on disk after an interrupt, for the one line the command prints."""
     if str(exc):  # the command said it itself (batch: which sequences finished)
@@ -70,13 +84,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         show_log(quiet=getattr(args, "quiet", False))
         return int(args.run(args) or 0)
     except KalmanSfmError as exc:
+        _close_progress_bars()
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # the file system refused (a full disk, a permission): the user can act on it
+        _close_progress_bars()
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
+        _close_progress_bars()
         number = exc.signal_number if isinstance(exc, Interrupted) else signal.SIGINT
         word = "terminated" if number == signal.SIGTERM else "interrupted"
         print(f"{prog}: {word}; {_interrupt_message(exc, commits_before)}", file=sys.stderr)
@@ -84,6 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # a bug, not a user mistake
         if debug:
             raise
+        _close_progress_bars()
         print(
             f"{prog}: unexpected error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
             file=sys.stderr,
@@ -99,4 +117,10 @@ def _terminate(signum: int, frame: object) -> None:
 def run() -> None:
     """Console-script entry point: signal handling first, then the command."""
     signal.signal(signal.SIGTERM, _terminate)
-    sys.exit(main())
+    code = main()
+    # The command is over and has said what happened: a Ctrl-C or SIGTERM while Python shuts down
+    # (a tenth of a second with NumPy, OpenCV and Matplotlib loaded) must not end the process by
+    # the signal, with nothing said and the exit code lost.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.exit(code)

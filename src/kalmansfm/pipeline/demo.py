@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NotEnoughDataError
-from ..io.atomic import output_directory
+from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import FrameSource, read_frames, stage_frames
 from ..io.summary import SUMMARY_FILE, RunSource, RunSummary, run_source, summary_json
 from ..report.drawing import track_colors
@@ -140,56 +140,57 @@ def run_demo(
     >>> run.summary.truth.tracking_rms_error_px < 0.5
     True
     """
+    check_output_directory(out_dir, inputs=[input])  # before the work, not after it
+    clock = Stopwatch()
+    scene = None
+    options = {"points": points, "track_ids": track_ids, "settings": settings, "weighted": weighted,
+               "smooth": smooth, "save_frames": save_frames, "html": html}
+    with clock.step("frames"):
+        if input is None:
+            made_from = demo_source(None, seed=seed, n_frames=n_frames, **options)
+            scene = render_scene(n_frames=n_frames, seed=seed)
+            frames = [np.asarray(f) for f in scene.frames]
+            first_visible = scene.visible[0]
+            points = scene.positions[0, first_visible]
+            track_ids = scene.track_ids[first_visible]
+            source = scene_description(scene)
+        else:
+            sequence = read_frames(input)
+            made_from = demo_source(sequence, **options)
+            frames = _load_frames(sequence)
+            source = str(input)
+    with clock.step("tracking"):
+        tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
+    if smooth:
+        with clock.step("smoothing"):
+            tracks = smooth_tracks(tracks)
+
+    reconstruction: Reconstruction | None = None
+    structure_error = None
+    with clock.step("factorization"):
+        try:
+            reconstruction = factorize_tracks(tracks, weighted=weighted)
+        except NotEnoughDataError as exc:
+            structure_error = str(exc)
+            log.warning("factorization skipped: %s", exc)
+    truth = None
+    if scene is not None:
+        truth = compare_with_truth(tracks, reconstruction, scene.ground_truth())
+
+    summary = RunSummary(
+        command=command,
+        input=source,
+        source=made_from,
+        settings=tracks.settings,
+        smoothed=tracks.smoothed,
+        tracking=tracking_metrics(tracks),
+        structure=None if reconstruction is None else structure_metrics(reconstruction, weighted=weighted,
+                                                                         smoothed=tracks.smoothed),
+        structure_error=structure_error,
+        truth=truth,
+        scene=None if scene is None else scene.parameters,
+    )
     with output_directory(out_dir, inputs=[input]) as out:
-        clock = Stopwatch()
-        scene = None
-        options = {"points": points, "track_ids": track_ids, "settings": settings, "weighted": weighted,
-                   "smooth": smooth, "save_frames": save_frames, "html": html}
-        with clock.step("frames"):
-            if input is None:
-                source = demo_source(None, seed=seed, n_frames=n_frames, **options)
-                scene = render_scene(n_frames=n_frames, seed=seed)
-                frames = [np.asarray(f) for f in scene.frames]
-                first_visible = scene.visible[0]
-                points = scene.positions[0, first_visible]
-                track_ids = scene.track_ids[first_visible]
-                description = scene_description(scene)
-            else:
-                sequence = read_frames(input)
-                source = demo_source(sequence, **options)
-                frames = _load_frames(sequence)
-                description = str(input)
-        with clock.step("tracking"):
-            tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
-        if smooth:
-            with clock.step("smoothing"):
-                tracks = smooth_tracks(tracks)
-
-        reconstruction: Reconstruction | None = None
-        structure_error = None
-        with clock.step("factorization"):
-            try:
-                reconstruction = factorize_tracks(tracks, weighted=weighted)
-            except NotEnoughDataError as exc:
-                structure_error = str(exc)
-                log.warning("factorization skipped: %s", exc)
-        truth = None
-        if scene is not None:
-            truth = compare_with_truth(tracks, reconstruction, scene.ground_truth())
-
-        summary = RunSummary(
-            command=command,
-            input=description,
-            source=source,
-            settings=tracks.settings,
-            smoothed=tracks.smoothed,
-            tracking=tracking_metrics(tracks),
-            structure=None if reconstruction is None else structure_metrics(reconstruction, weighted=weighted,
-                                                                             smoothed=tracks.smoothed),
-            structure_error=structure_error,
-            truth=truth,
-            scene=None if scene is None else scene.parameters,
-        )
         with clock.step("writing"):
             names = stage_frames(out, frames, "frames/") if save_frames else []
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
@@ -201,7 +202,7 @@ def run_demo(
         summary = stage_summary(out, summary, clock, names)
         report = None
         if html:
-            # built from the staged run, so the folder gets its report together with its results
+            # built from the staged run, so that the folder gets its report together with its results
             with clock.step("report"):
                 report = build_report(out.staging, progress=progress, shown_as=out.path)
             # the report's time goes into the one timing record

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .._version import __version__
 from ..errors import InvalidInputError
-from ..io.atomic import output_directory
+from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..structure import Reconstruction
@@ -109,20 +109,22 @@ def run_reconstruct(
     >>> round(run.summary.structure.residual_rms_px, 2)
     2.88
     """
+    check_output_directory(out_dir, inputs=[tracks_path])
+    clock = Stopwatch()
+    tracks = read_tracks_for_factorization(tracks_path, smooth=smooth)
+    source = run_source(tracks_path, [tracks_path], {"weighted": weighted, "smooth": smooth,
+                                                     "max_iterations": max_iterations, "plot": plot})
+    has_weights = weighted and tracks.covariances is not None
+    log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
+    with clock.step("factorization"):
+        reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
+    summary = RunSummary(command="reconstruct", input=str(tracks_path), source=source, settings=tracks.settings,
+                         smoothed=tracks.smoothed,
+                         structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed))
+    name = Path(tracks_path).name
     with output_directory(out_dir, inputs=[tracks_path]) as out:
-        clock = Stopwatch()
-        tracks = read_tracks_for_factorization(tracks_path, smooth=smooth)
-        source = run_source(tracks_path, [tracks_path], {"weighted": weighted, "smooth": smooth,
-                                                         "max_iterations": max_iterations, "plot": plot})
-        has_weights = weighted and tracks.covariances is not None
-        log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
-        with clock.step("factorization"):
-            reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
-        summary = RunSummary(command="reconstruct", input=str(tracks_path), source=source, settings=tracks.settings,
-                             smoothed=tracks.smoothed,
-                             structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed))
         with clock.step("writing"):
             names = stage_structure(out, reconstruction, tracks.track_ids, frames=tracks.frames,
-                                    comment=f"kalmansfm {__version__} from {Path(tracks_path).name}", plot=plot)
+                                    comment=f"kalmansfm {__version__} from {name}", plot=plot)
         summary = stage_summary(out, summary, clock, names)
     return ReconstructRun(Path(out_dir), tracks, reconstruction, summary)

@@ -6,7 +6,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..io.atomic import output_directory
+from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import check_points_inside, read_points_csv
@@ -57,26 +57,27 @@ def run_track(
     >>> run.summary.tracking.frames, "tracks.npz" in run.summary.files
     (5, True)
     """
+    check_output_directory(out_dir, inputs=[input, points])
+    clock = Stopwatch()
+    frames = read_frames(input)
+    start = track_ids = None
+    if points is not None:
+        start, track_ids = read_points_csv(points)
+        first = next(iter(frames))
+        check_points_inside(start, first.shape[1], first.shape[0], str(points))
+    source = run_source(input, [*frames.paths, *([points] if points is not None else [])],
+                        {"settings": settings or TrackerSettings(), "smooth": smooth})
+    with clock.step("tracking"):
+        tracks = track(frames, start, track_ids=track_ids, settings=settings, progress=progress)
+    if smooth is not False:
+        with clock.step("smoothing"):
+            tracks = smooth_tracks(tracks, lag=None if smooth is True else int(smooth))
+    last_frame = None
+    for last_frame in frames:  # the last frame for the picture (frames are decoded lazily)
+        pass
+    summary = RunSummary(command="track", input=str(input), source=source, settings=tracks.settings,
+                         smoothed=tracks.smoothed, tracking=tracking_metrics(tracks))
     with output_directory(out_dir, inputs=[input, points]) as out:
-        clock = Stopwatch()
-        frames = read_frames(input)
-        start = track_ids = None
-        if points is not None:
-            start, track_ids = read_points_csv(points)
-            first = next(iter(frames))
-            check_points_inside(start, first.shape[1], first.shape[0], str(points))
-        source = run_source(input, [*frames.paths, *([points] if points is not None else [])],
-                            {"settings": settings or TrackerSettings(), "smooth": smooth})
-        with clock.step("tracking"):
-            tracks = track(frames, start, track_ids=track_ids, settings=settings, progress=progress)
-        if smooth is not False:
-            with clock.step("smoothing"):
-                tracks = smooth_tracks(tracks, lag=None if smooth is True else int(smooth))
-        last_frame = None
-        for last_frame in frames:  # the last frame for the picture (frames are decoded lazily)
-            pass
-        summary = RunSummary(command="track", input=str(input), source=source, settings=tracks.settings,
-                             smoothed=tracks.smoothed, tracking=tracking_metrics(tracks))
         with clock.step("writing"):
             names = stage_tracking(out, tracks, frames, last_frame=last_frame)  # type: ignore[arg-type]
         summary = stage_summary(out, summary, clock, names)
