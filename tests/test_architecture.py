@@ -45,6 +45,8 @@ LAYERS: dict[str, int] = {
     "__main__": 9,
     "": 9,  # kalmansfm/__init__.py
 }
+#: Modules that belong to another room: ``_api`` holds the names kalmansfm/__init__.py loads on first use.
+ROOM_OF = {"_api": ""}
 
 
 def module_name(path: Path) -> str:
@@ -86,6 +88,7 @@ def layer_of(module: str) -> tuple[str, int]:
     """(room, layer) of a kalmansfm module: its first component below the package."""
     parts = module.split(".")
     room = parts[1] if len(parts) > 1 else ""
+    room = ROOM_OF.get(room, room)
     if room not in LAYERS:
         raise KeyError(f"{module} belongs to no layer; add {room!r} to LAYERS and to docs/architecture.md")
     return room, LAYERS[room]

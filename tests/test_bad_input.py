@@ -40,6 +40,7 @@ CASES = [
     ("track", "{d}/empty --out {out}", "empty holds no image files"),
     ("track", "{d}/text_as_png --out {out}", "text_as_png/f0.png is not a readable image"),
     ("track", "{d}/truncated --out {out}", "truncated/f1.png is not a readable image"),
+    ("track", "{d}/truncated_large --out {out}", "truncated_large/f1.png is not a readable image"),
     ("track", "{d}/broken.mp4 --out {out}", "broken.mp4 is not a decodable video"),
     ("track", "{d}/sizes --out {out}", "sizes/f2.png is 150×100 but f0.png is 160×120"),
     ("track", "{d}/one_frame --out {out}", "one_frame holds 1 image(s)"),
@@ -65,6 +66,13 @@ CASES = [
     ("track", "{d}/good --out {out} --score sad", "argument --score: invalid choice"),
     ("track", "{d}/good --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
     ("track", "{d}/good --out {d}/a_file.txt", "a_file.txt exists and is not a folder"),
+    ("track", "{d}/good --out {d}/good", "output folder {d}/good is the input {d}/good"),
+    ("track", "{d}/good --out {d}/good/run", "output folder {d}/good/run lies inside the input {d}/good"),
+    ("track", "{d}/good --out {d}/not_a_run", "not_a_run is not empty and holds no kalmansfm run"),
+    ("track", "{d}/good --out {d}/run_with_notes", "holds notes.txt, which its kalmansfm run did not write"),
+    ("track", "{d}/good --out {out} --points {d}/big_id.csv", "big_id.csv row 2: track_id must be an integer in 0 … 10000000; got '1e23'"),
+    ("track", "{d}/good --out {out} --gate-radius 1e-300", "--gate-radius must be between 1e-06 and 1e+06; got 1e-300"),
+    ("track", "{d}/good --out {out} --gate-radius 1e300", "--gate-radius must be between 1e-06 and 1e+06; got 1e+300"),
     # --- demo --------------------------------------------------------------------------------
     ("demo", "--out {out} --frames 1", "--frames must be an integer >= 3; got 1"),
     ("demo", "--out {out} --frames 0", "--frames must be an integer >= 3; got 0"),
@@ -78,6 +86,7 @@ CASES = [
     ("demo", "--out {out} --input {d}/sizes", "sizes/f2.png is 150×100"),
     ("demo", "--out {out} --input {d}/one_frame", "one_frame holds 1 image(s)"),
     ("demo", "--out " + NOT_WRITABLE + " --frames 3", "a_file.txt/sub is not writable"),
+    ("demo", "--out {d}/good/demo --input {d}/good", "output folder {d}/good/demo lies inside the input {d}/good"),
     # --- reconstruct -------------------------------------------------------------------------
     ("reconstruct", "{d}/missing.csv --out {out}", "missing.csv: no such file"),
     ("reconstruct", "{d}/empty --out {out}", "empty: no such file"),
@@ -104,6 +113,15 @@ CASES = [
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --focal 500 --image-size 100 100",
      "no two frames share >= 24 tracks"),
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --focal 500", "describe a perspective camera"),
+    ("reconstruct", "{out}/tracks.csv --out {out}", "tracks.csv lies inside the output folder"),
+    ("reconstruct", "{d}/tracks_big_frame.csv --out {out}", "tracks_big_frame.csv: line 2: frame must be in 0 … 10000000; got 1e30"),
+    ("reconstruct", "{d}/tracks_big_id.csv --out {out}", "line 3: track_id must be in 0 … 10000000; got 1e30"),
+    ("reconstruct", "{d}/tracks_same_point.csv --out {out}", "factorize needs points that spread out"),
+    ("reconstruct", "{d}/tracks_huge_x.csv --out {out}", "tracks_huge_x.csv: line 10: x must be within ±1e+07 px; got '1e300'"),
+    ("reconstruct", "{d}/tracks_case.csv --out {out}", "line 2: status must be measured, predicted, lost, initialising; got 'Measured'"),
+    ("reconstruct", "{d}/complex.npz --out {out}", "complex.npz: positions must be a numeric (frames, points, 2) array; got complex128"),
+    ("reconstruct", "{d}/negative_frames.npz --out {out}", "negative_frames.npz: frames must be increasing frame numbers"),
+    ("reconstruct", "{d}/repeated_frames.npz --out {out}", "repeated_frames.npz: frames must be increasing frame numbers"),
     ("demo", "--out {out} --camera perspective --focal 500", "needs your own sequence"),
     # --- fuse --------------------------------------------------------------------------------
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_no_p34.csv --out {out}", "cams_no_p34.csv: header lacks column(s) p34"),
@@ -128,11 +146,16 @@ CASES = [
     ("report", "{d}/run_bad_npz", "run_bad_npz/tracks.npz: positions must be a numeric (frames, points, 2) array"),
     ("report", "{d}/run_bad_structure", "run_bad_structure/structure.csv, line 2: column 'Y' must be a number"),
     ("report", "{d}/run_bad_json --name ../escape.html", "--name must be a plain file name"),
+    ("report", "{d}/run_bad_frame", "run_bad_frame/frames/frame_000.png: cannot be read as a PNG image"),
+    ("report", "{d}/run_ok --name summary.json", "--name summary.json would overwrite the run's own summary.json"),
+    ("report", "{d}/run_ok --name tracks.csv", "--name tracks.csv would overwrite the run's own tracks.csv"),
+    ("report", "{d}/run_ok --name notes.txt", "--name must end in .html"),
     # --- batch -------------------------------------------------------------------------------
     ("batch", "{d}/missing --out {out}", "sequence '{d}/missing' does not exist"),
-    ("batch", "scene:1 scene:x --out {out}", "sequence 'scene:x': the built-in scene is named scene:SEED"),
-    ("batch", "scene:1 {d}/empty --out {out}", "empty holds no image files"),
-    ("batch", "scene:1 {d}/one_frame --out {out}", "one_frame holds 1 image(s)"),
+    ("batch", "scene:x {d}/missing --out {out}", "none of the 2 sequences can run; the first: sequence 'scene:x'"),
+    ("batch", "{d}/empty --out {out}", "empty holds no image files"),
+    ("batch", "{d}/one_frame --out {out}", "one_frame holds 1 image(s)"),
+    ("batch", "scene:1 --out {out} --scheduler notaurl", "cannot use the Dask scheduler 'notaurl'"),
     ("batch", "scene:1 --out {out} --workers 0", "--workers must be >= 1; got 0"),
     ("batch", "scene:1 --out {out} --workers -2", "--workers must be >= 1"),
     ("batch", "scene:1 --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
@@ -157,6 +180,7 @@ CASES = [
     # --- scene -------------------------------------------------------------------------------
     ("scene", "--out {out} --frames 1", "--frames must be an integer >= 3; got 1"),
     ("scene", "--out {out} --size 0x10", "--size must be positive; got 0x10"),
+    ("scene", "--out {out} --size 40000x40000", "image_size must be (width, height) with integers in 32 … 4096"),
     ("scene", "--out {out} --size big", "argument --size: expected WIDTHxHEIGHT"),
     ("scene", "--out {out} --noise -1", "--noise must be a finite number >= 0; got -1.0"),
     ("scene", "--out {out} --noise nan", "--noise must be a finite number >= 0"),
@@ -198,6 +222,9 @@ def bad_inputs(tmp_path_factory) -> Path:
     folder("empty", {})
     folder("text_as_png", {f"f{k}.png": b"this is text, not a picture\n" for k in range(3)})
     folder("truncated", {"f0.png": frames[0], "f1.png": frames[1][: len(frames[1]) // 2], "f2.png": frames[2]})
+    # a frame cut inside its image data: libpng itself prints "PNG input buffer is incomplete"
+    large = [_png(f) for f in render_scene(n_frames=3).frames]
+    folder("truncated_large", {"f0.png": large[0], "f1.png": large[1][: len(large[1]) // 2], "f2.png": large[2]})
     folder("sizes", {"f0.png": frames[0], "f1.png": frames[1], "f2.png": _png(scene.frames[2][:100, :150])})
     folder("one_frame", {"f0.png": frames[0]})
     (d / "broken.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(300))
@@ -231,6 +258,18 @@ def bad_inputs(tmp_path_factory) -> Path:
     k_header = "frame,fx,fy,cx,cy,skew," + ",".join(f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)) + ",t1,t2,t3"
     (d / "cams_not_rotation.csv").write_text(k_header + "\n0,500,500,320,240,0,1,0,0,0,2,0,0,0,1,0,0,5\n")
     (d / "binary.csv").write_bytes(bytes(range(256)))
+    (d / "big_id.csv").write_text("x,y,track_id\n50,50,1e23\n60,60,2\n")
+    (d / "tracks_big_frame.csv").write_text("frame,track_id,x,y\n1e30,1,2,3\n0,1,2,3\n")
+    (d / "tracks_big_id.csv").write_text("frame,track_id,x,y\n0,1,2,3\n0,1e30,2,3\n")
+    same = [f"{f},{p},10,10" for f in range(4) for p in range(6)]
+    (d / "tracks_same_point.csv").write_text("frame,track_id,x,y\n" + "\n".join(same) + "\n")
+    huge = ok_rows[:8] + ["1,2,1e300,5"] + ok_rows[9:]  # frame 1, track 2 far out
+    (d / "tracks_huge_x.csv").write_text("frame,track_id,x,y\n" + "\n".join(huge) + "\n")
+    (d / "tracks_case.csv").write_text("frame,track_id,x,y,status\n0,1,2,3,Measured\n")
+    arrays = {"positions": rng.uniform(0, 100, (4, 5, 2)), "status": np.ones((4, 5), np.int8), "track_ids": np.arange(5)}
+    np.savez(d / "complex.npz", **{**arrays, "positions": arrays["positions"] + 1j})
+    np.savez(d / "negative_frames.npz", **arrays, frames=np.array([-1, 0, 1, 2]))
+    np.savez(d / "repeated_frames.npz", **arrays, frames=np.array([0, 1, 1, 2]))
     np.savez(d / "positions_3.npz", positions=np.zeros((4, 5, 3)), status=np.ones((4, 5), np.int8), track_ids=np.arange(5))
     np.savez(d / "status_shape.npz", positions=np.zeros((4, 5, 2)), status=np.ones((4, 4), np.int8), track_ids=np.arange(5))
     np.savez(d / "no_ids.npz", positions=np.zeros((4, 5, 2)), status=np.ones((4, 5), np.int8))
@@ -244,6 +283,12 @@ def bad_inputs(tmp_path_factory) -> Path:
     np.savez(d / "run_bad_npz" / "tracks.npz", positions=np.zeros((3, 4, 3)), status=np.zeros((3, 4), np.int8),
              track_ids=np.arange(4))
     folder("run_bad_structure", {"summary.json": summary("structure.csv"), "structure.csv": b"track_id,X,Y,Z\n1,2,abc,4\n"})
+    folder("run_bad_frame", {"summary.json": summary("frames/frame_000.png")})
+    folder("run_bad_frame/frames", {"frame_000.png": large[1][: len(large[1]) // 2]})
+    folder("run_ok", {"summary.json": summary("tracks.csv"), "tracks.csv": b"frame,track_id,x,y\n0,1,2,3\n"})
+    folder("not_a_run", {"notes.txt": b"the user's own file\n"})
+    folder("run_with_notes", {"summary.json": summary("tracks.csv"), "tracks.csv": b"frame,track_id,x,y\n0,1,2,3\n",
+                              "notes.txt": b"the user's own file\n"})
     return d
 
 
@@ -270,9 +315,10 @@ def test_bad_input_is_refused_in_one_line_and_nothing_is_written(
     command, arguments, fragment, variant, bad_inputs, tmp_path, capsys
 ):
     out = tmp_path / "out"
-    if variant == "existing":
+    if variant == "existing":  # an earlier run that the bad one must leave as it was
         out.mkdir()
-        (out / "summary.json").write_text('{"earlier": "run"}\n')
+        earlier = RunSummary(command="reconstruct", input="earlier.csv", files=("tracks.csv", "summary.json"))
+        (out / "summary.json").write_text(summary_json(earlier))
         (out / "tracks.csv").write_text("frame,track_id,x,y\n0,1,2,3\n")
     before_out, before_inputs = _snapshot(out), _snapshot(bad_inputs)
 
@@ -293,16 +339,22 @@ def test_bad_input_is_refused_in_one_line_and_nothing_is_written(
     assert out.exists() == (variant == "existing")
     assert _snapshot(bad_inputs) == before_inputs
     assert not [p for p in bad_inputs.rglob("*.tmp")]
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["out"] if variant == "existing" else [])
 
 
 @pytest.mark.parametrize(
     "arguments, fragment",
     [
         ("track {d}/truncated --out {out} --quiet", "truncated/f1.png is not a readable image"),
+        ("track {d}/truncated_large --out {out} --quiet", "truncated_large/f1.png is not a readable image"),
+        ("report {d}/run_bad_frame --quiet", "frame_000.png: cannot be read as a PNG image"),
         ("track {d}/broken.mp4 --out {out} --quiet", "broken.mp4 is not a decodable video"),
         ("reconstruct {d}/tracks_nan.csv --out {out} --quiet", "line 3: y must be finite"),
         ("batch scene:1 --out {out} --workers 0 --quiet", "--workers must be >= 1"),
         ("track {d}/good --out {out} --window 4", "argument --window"),
+        ("reconstruct {d}/complex.npz --out {out}", "positions must be a numeric"),  # no ComplexWarning
+        ("consistency --task 2 --runs 0", "runs must be an integer >= 2; got 0"),  # no progress bar first
+        ("batch scene:1 --out {out} --scheduler notaurl", "cannot use the Dask scheduler 'notaurl'"),
     ],
 )
 def test_a_real_process_prints_one_line_and_no_native_warnings(arguments, fragment, bad_inputs, tmp_path):

@@ -6,40 +6,19 @@ Data flows one way: frames → :func:`track` → :func:`factorize` → report
 known cameras (:class:`CameraSet`) into a 3D point with a covariance; :func:`fuse_recursive`
 and :func:`estimate_landmarks` fuse 3D structure under known motion.
 The layers and what each may import: docs/architecture.md.
+
+Importing the package is light: the names of ``__all__`` other than the error classes are
+loaded when first used (from :mod:`kalmansfm._api`, and ``__version__`` from the package
+metadata), so that the command line can install its signal handling before NumPy and
+OpenCV load.
 """
 
-from ._version import __version__
 from .errors import InvalidInputError, KalmanSfmError, KalmanSfmWarning, NotEnoughDataError, SingularCovarianceError
-from .estimation import (
-    FilterRun,
-    FusionResult,
-    KalmanFilter,
-    LinearGaussianModel,
-    SmoothedRun,
-    constant_velocity_2d,
-    fuse_closed_form,
-    fuse_recursive,
-    smooth,
-)
-from .pipeline import DemoRun, FuseRun, run_demo, run_fuse
-from .structure import (
-    CameraSet,
-    FusedStructure,
-    FusionSettings,
-    LandmarkEstimates,
-    PerspectiveReconstruction,
-    PerspectiveSettings,
-    PointStatus,
-    Reconstruction,
-    TriangulationResult,
-    align_similarity,
-    estimate_landmarks,
-    factorize,
-    fuse,
-    reconstruct_perspective,
-    triangulate_midpoint,
-)
-from .tracking import Tracker, TrackerSettings, Tracks, TrackStatus, track
+
+TYPE_CHECKING = False  # not typing.TYPE_CHECKING: importing typing alone takes longer than this whole file
+if TYPE_CHECKING:  # what type checkers see; at run time __getattr__ loads these on first use
+    from ._api import *  # noqa: F403
+    from ._version import __version__
 
 __all__ = [
     "CameraSet",
@@ -82,3 +61,21 @@ __all__ = [
     "track",
     "triangulate_midpoint",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """Load a public name on first use (PEP 562)."""
+    if name in __all__:
+        if name == "__version__":  # the package metadata lookup takes tens of milliseconds
+            from . import _version as _api
+        else:
+            from . import _api
+
+        value = getattr(_api, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

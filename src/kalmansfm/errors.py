@@ -13,7 +13,7 @@ __all__ = [
     "InvalidInputError",
     "NotEnoughDataError",
     "SingularCovarianceError",
-    "ReportInterrupted",
+    "Interrupted",
     "KalmanSfmWarning",
 ]
 
@@ -34,11 +34,20 @@ class SingularCovarianceError(KalmanSfmError, ArithmeticError):
     """A covariance that must be positive definite is not (e.g. the innovation covariance)."""
 
 
-class ReportInterrupted(KeyboardInterrupt):
-    """Ctrl-C while ``report.html`` was being built, after the run's results were written.
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) or SIGTERM stopped a command; the message, when there is one, says what is on disk.
 
-    The message says what is on disk: the new results, and no report.
+    The command line raises it from its SIGTERM handler, so that a job killer cleans up
+    exactly as Ctrl-C does, and ``batch`` raises it to say which sequences finished.
+
+    Attributes
+    ----------
+    signal_number : the signal that stopped the command (2 = SIGINT, 15 = SIGTERM).
     """
+
+    def __init__(self, message: str = "", signal_number: int = 2) -> None:
+        super().__init__(message)
+        self.signal_number = signal_number
 
 
 class KalmanSfmWarning(UserWarning):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from kalmansfm.cli import main as cli
-from kalmansfm.io import read_summary
+from kalmansfm.io import RunSummary, read_summary, summary_json
 from kalmansfm.io.tracks import read_tracks_npz
 from kalmansfm.scenes import render_scene
 
@@ -71,6 +71,8 @@ def test_bad_points_file_exit_2_and_nothing_left(scene_folder, tmp_path, capsys,
 def test_bad_input_exit_2_and_existing_folder_left_as_it_was(tmp_path, capsys):
     out = tmp_path / "existing"
     out.mkdir()
+    earlier = RunSummary(command="track", input="earlier", files=("keep.txt", "summary.json"))
+    (out / "summary.json").write_text(summary_json(earlier))
     (out / "keep.txt").write_text("earlier result")
     assert cli.main(["track", str(tmp_path / "missing"), "--out", str(out), "--quiet"]) == 2
     assert "does not exist" in capsys.readouterr().err
@@ -80,7 +82,7 @@ def test_bad_input_exit_2_and_existing_folder_left_as_it_was(tmp_path, capsys):
         cv2.imwrite(str(frames / f"{k}.png"), np.zeros(size[::-1], np.uint8))
     assert cli.main(["track", str(frames), "--out", str(out), "--quiet"]) == 2
     assert "2.png is 41×30" in capsys.readouterr().err
-    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt", "summary.json"]
 
 
 def test_gate_options_are_exclusive(tmp_path, capsys):

@@ -133,13 +133,15 @@ def test_the_per_track_table_is_folded_without_empty_columns(hotel_run):
 @pytest.fixture(scope="module")
 def picked_ids_run(tmp_path_factory):
     """The built-in scene's frames as a folder, tracked from frame 0's corners under ids 5, 36, 67, … (not 0, 1, 2, …)."""
-    folder = tmp_path_factory.mktemp("ids")
+    base = tmp_path_factory.mktemp("ids")
+    frames = base / "frames"
+    frames.mkdir()
     scene = render_scene(n_frames=12)
     for f, frame in enumerate(scene.frames):
-        cv2.imwrite(str(folder / f"f{f:02d}.png"), frame)
+        cv2.imwrite(str(frames / f"f{f:02d}.png"), frame)
     start = scene.visible[0]
     ids = 5 + 31 * np.arange(int(start.sum()))  # colour index 5, 6, 7, …: never the column's
-    return run_demo(folder / "run", input=folder, points=scene.positions[0, start], track_ids=ids)
+    return run_demo(base / "run", input=frames, points=scene.positions[0, start], track_ids=ids)
 
 
 def test_a_track_has_one_colour_in_every_picture_and_table(picked_ids_run):

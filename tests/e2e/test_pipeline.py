@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kalmansfm.cli.main import main
-from kalmansfm.io import read_summary
+from kalmansfm.io import RunSummary, read_summary, summary_json
 from kalmansfm.pipeline import run_demo
 
 
@@ -72,9 +72,10 @@ def test_demo_on_a_real_sequence_has_no_ground_truth_section(tmp_path, capsys):
 def test_a_failed_run_leaves_the_previous_results(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
-    (out / "summary.json").write_text("previous")
+    previous = summary_json(RunSummary(command="demo", input="previous", files=("summary.json",)))
+    (out / "summary.json").write_text(previous)
     assert main(["demo", "--input", str(tmp_path / "missing"), "--out", str(out), "--quiet"]) == 2
-    assert (out / "summary.json").read_text() == "previous"
+    assert (out / "summary.json").read_text() == previous
     assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and "missing" in err

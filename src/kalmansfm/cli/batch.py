@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..pipeline.batch import check_sequence, run_batch
 from ..errors import InvalidInputError
+from ..pipeline.batch import run_batch
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -16,8 +16,11 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         help="run the pipeline on many sequences in parallel (Dask)",
         description="Track and reconstruct each SEQUENCE (an image folder, a glob, a video, or scene:SEED for "
         "the built-in scene) as an independent task on dask.distributed: a local cluster by default, or an "
-        "existing one with --scheduler. One run folder per sequence in --out and a batch_summary.csv; a failing "
-        "sequence does not stop the others, and sequences whose folder already has a summary.json are skipped.",
+        "existing one with --scheduler. One run folder per sequence in --out (named after the input, the same "
+        "in every batch) and a batch_summary.csv. Every sequence is checked first: one that cannot run is a "
+        "failed row and the others run; a sequence whose folder holds a finished run of the same input files "
+        "and options is skipped. Exit code 0 when every sequence is ok or skipped, 1 when any failed, 2 when "
+        "none can run.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("sequences", nargs="+", metavar="SEQUENCE", help="image folder, glob, video or scene:SEED")
@@ -30,10 +33,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     """Run the batch; print the summary table; exit 1 if any sequence failed."""
-    # Mistakes visible before any work (a misspelt path, a bad scene:SEED) stop the run at once;
-    # the library's run_batch would instead report them as failed rows after the others ran.
-    for spec in args.sequences:
-        check_sequence(spec)
     if args.workers is not None and args.workers < 1:
         raise InvalidInputError(f"--workers must be >= 1; got {args.workers}")
     result = run_batch(

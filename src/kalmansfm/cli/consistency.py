@@ -93,11 +93,23 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidInputError("--method applies to --task 7 only (task 2 is plain Kalman fusion)")
     if args.task == 2 and args.space != "point":
         raise InvalidInputError("--space applies to --task 7 only")
-    with tqdm(total=args.runs, desc=f"task {args.task} runs", unit="run", disable=args.quiet, file=sys.stderr) as bar:
+    bars: list[tqdm] = []
+
+    def progress(n: int = 1) -> None:
+        # the bar appears with the first finished run, after run_consistency has checked the options
+        if not bars:
+            bars.append(tqdm(total=args.runs, desc=f"task {args.task} runs", unit="run", disable=args.quiet,
+                             file=sys.stderr))
+        bars[0].update(n)
+
+    try:
         with as_typed({"runs": "--runs", "seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-noise"}):
             result = run_consistency(
-                args.task, args.method, args.runs, args.seed, args.focal, args.pixel_noise, progress=bar.update,
+                args.task, args.method, args.runs, args.seed, args.focal, args.pixel_noise, progress=progress,
                 space=args.space.replace("-", "_"),
             )
+    finally:
+        for bar in bars:
+            bar.close()
     sys.stdout.write(format_text(result) if args.format == "text" else format_csv(result))
     return 0

@@ -6,107 +6,102 @@ calls one library function and returns the exit code.
 
 Exit codes: 0 success, 2 bad input or usage (one line on stderr, no
 traceback), 1 unexpected failure (rerun with ``--debug`` for the traceback),
-130 interrupted.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM); the line after an interrupt
+says whether the new results were written.
+
+This module imports nothing heavy at load time (the parser is in :mod:`.parser`): the
+console entry point (:func:`run`) sets up its signal handling first and only then loads
+argparse, NumPy, OpenCV and the commands, so that a Ctrl-C in the first second is the
+same one line.
 """
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import logging
+import signal
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from .._version import __version__
-from ..errors import KalmanSfmError, ReportInterrupted
-from ._options import HelpFormatter
+from ..errors import Interrupted, KalmanSfmError
+
+if TYPE_CHECKING:
+    import argparse
 
 # Order shown in --help.
 SUBCOMMANDS = ["demo", "track", "reconstruct", "fuse", "report", "batch", "tables", "consistency", "scene"]
 
-log = logging.getLogger("kalmansfm")
-
-
-class _Parser(argparse.ArgumentParser):
-    """An ArgumentParser whose usage errors are a single line."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
-
-
-class _CurrentStderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
-    """Writes to whatever ``sys.stderr`` is when a record is emitted.
-
-    A plain ``StreamHandler(sys.stderr)`` keeps the stream of the first call of
-    :func:`main`; when ``main`` runs again in the same process after sys.stderr was
-    replaced (pytest's capture, a notebook) it wrote to a closed file and printed a
-    "--- Logging error ---" traceback.
-    """
-
-    @property  # type: ignore[override]
-    def stream(self):  # type: ignore[no-untyped-def]
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, value) -> None:  # type: ignore[no-untyped-def]
-        pass
-
-
-def _common_options() -> argparse.ArgumentParser:
-    common = _Parser(add_help=False)
-    common.add_argument("--quiet", "-q", action="store_true", help="no progress bars or log lines")
-    common.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
-    return common
-
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser with every subcommand."""
-    parser = _Parser(
-        prog="kalmansfm",
-        description="Track points through video with Kalman filters, recover 3D shape and camera motion "
-        "by factorization, and fuse noisy 3D structure with honest uncertainty.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("--version", action="version", version=f"kalmansfm {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    sub.required = True
-    common = _common_options()
-    for name in SUBCOMMANDS:
-        module = importlib.import_module(f"{__package__}.{name.replace('-', '_')}")
-        module.add_parser(sub, [common])
-    for subparser in (parser, *sub.choices.values()):
-        subparser.formatter_class = HelpFormatter  # one way of showing defaults in every --help
-    return parser
+    from .parser import make_parser
+
+    return make_parser(SUBCOMMANDS)
+
+
+def _commits() -> tuple[int, object]:
+    """(run folders committed by this process, the last one), without importing anything.
+
+    After Ctrl-C a module may be half imported; importing more would fail in odd ways.
+    A process that has not loaded kalmansfm.io.atomic has committed nothing.
+    """
+    last_commit = getattr(sys.modules.get("kalmansfm.io.atomic"), "last_commit", None)
+    return last_commit() if last_commit is not None else (0, None)
+
+
+def _close_progress_bars() -> None:
+    """Erase the progress bars an error or interrupt left open, so that our one line starts the line.
+
+    A bar interrupted while it was being drawn does not always erase itself when closed;
+    then the line is returned to (and on a terminal cleared) by hand.
+    """
+    bar_class = getattr(sys.modules.get("tqdm"), "tqdm", None)
+    shown = [bar for bar in list(getattr(bar_class, "_instances", ())) if not getattr(bar, "disable", True)]
+    for bar in shown:
+        bar.close()
+    if shown:
+        sys.stderr.write("\r\033[K" if sys.stderr.isatty() else "\r")
+
+
+def _interrupt_message(exc: KeyboardInterrupt, commits_before: int) -> str:
+    """What is on disk after an interrupt, for the one line the command prints."""
+    if str(exc):  # the command said it itself (batch: which sequences finished)
+        return str(exc)
+    count, folder = _commits()
+    if count > commits_before:
+        return f"the new results were written to {folder} before it stopped"
+    return "earlier results were left as they were"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line with ``argv`` (default ``sys.argv[1:]``) and return the exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    # Configure our own logger only: libraries we call (Dask, Matplotlib) keep their defaults.
-    if not log.handlers:
-        handler = _CurrentStderrHandler()
-        handler.setFormatter(logging.Formatter("%(message)s"))
-        log.addHandler(handler)
-        log.propagate = False
-    log.setLevel(logging.WARNING if getattr(args, "quiet", False) else logging.INFO)
-    prog = f"kalmansfm {args.command}"
+    prog, debug, commits_before = "kalmansfm", False, _commits()[0]
     try:
+        parser = build_parser()  # imports every command, NumPy and OpenCV
+        args = parser.parse_args(argv)
+        prog, debug = f"kalmansfm {args.command}", args.debug
+        from .parser import show_log
+
+        show_log(quiet=getattr(args, "quiet", False))
         return int(args.run(args) or 0)
     except KalmanSfmError as exc:
+        _close_progress_bars()
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    except OSError as exc:
-        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
-        print(f"{prog}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+    except OSError as exc:  # the file system refused (a full disk, a permission): the user can act on it
+        _close_progress_bars()
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        what = str(exc) if isinstance(exc, ReportInterrupted) else "earlier results were left as they were"
-        print(f"{prog}: interrupted; {what}", file=sys.stderr)
-        return 130
+        _close_progress_bars()
+        number = exc.signal_number if isinstance(exc, Interrupted) else signal.SIGINT
+        word = "terminated" if number == signal.SIGTERM else "interrupted"
+        print(f"{prog}: {word}; {_interrupt_message(exc, commits_before)}", file=sys.stderr)
+        return 128 + int(number)
     except Exception as exc:  # a bug, not a user mistake
-        if args.debug:
+        if debug:
             raise
+        _close_progress_bars()
         print(
             f"{prog}: unexpected error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
             file=sys.stderr,
@@ -114,6 +109,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM handler: stop the way Ctrl-C does, so that staged files are removed on the way out."""
+    raise Interrupted(signal_number=signum)
+
+
 def run() -> None:
-    """Console-script entry point."""
-    sys.exit(main())
+    """Console-script entry point: signal handling first, then the command."""
+    signal.signal(signal.SIGTERM, _terminate)
+    code = main()
+    # The command is over and has said what happened: a Ctrl-C or SIGTERM while Python shuts down
+    # (a tenth of a second with NumPy, OpenCV and Matplotlib loaded) must not end the process by
+    # the signal, with nothing said and the exit code lost.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.exit(code)

@@ -9,6 +9,7 @@ import sys
 from ..errors import InvalidInputError
 from ..pipeline import run_track
 from ..tracking import TrackerSettings
+from ._options import as_typed
 
 log = logging.getLogger("kalmansfm")
 
@@ -80,15 +81,17 @@ def settings_from_args(args: argparse.Namespace) -> TrackerSettings:
     """The tracker settings the options ask for (the others keep their defaults)."""
     if args.max_features < 1:
         raise InvalidInputError(f"--max-features must be >= 1; got {args.max_features}")
-    return TrackerSettings(
-        window=args.window,
-        score=args.score,
-        gate_probability=args.gate,
-        gate_radius=args.gate_radius,
-        max_misses=args.max_misses,
-        max_features=args.max_features,
-        redetect=args.redetect,
-    )
+    with as_typed({"window": "--window", "gate_probability": "--gate", "gate_radius": "--gate-radius",
+                   "max_misses": "--max-misses"}):
+        return TrackerSettings(
+            window=args.window,
+            score=args.score,
+            gate_probability=args.gate,
+            gate_radius=args.gate_radius,
+            max_misses=args.max_misses,
+            max_features=args.max_features,
+            redetect=args.redetect,
+        )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,11 +4,11 @@ Everything that touches a file lives here, and dicts appear only here: the layer
 hand frozen records in and get frozen records back.
 """
 
-from .atomic import OutputDirectory, atomic_write, output_directory
+from .atomic import OutputDirectory, atomic_write, check_output_directory, output_directory
 from .frames import FrameSource, read_frames
 from .ground_truth import GroundTruth, ground_truth_files, read_ground_truth, read_ground_truth_tracks
 from .run_folder import RunFolder, load_run
-from .summary import RunSummary, read_summary, summary_json
+from .summary import RunSource, RunSummary, read_summary, run_source, summary_json
 from .tracks import read_points_csv, read_tracks, read_tracks_csv, read_tracks_npz, write_tracks_csv, write_tracks_npz
 
 __all__ = [
@@ -16,8 +16,10 @@ __all__ = [
     "GroundTruth",
     "OutputDirectory",
     "RunFolder",
+    "RunSource",
     "RunSummary",
     "atomic_write",
+    "check_output_directory",
     "ground_truth_files",
     "load_run",
     "output_directory",
@@ -29,6 +31,7 @@ __all__ = [
     "read_tracks",
     "read_tracks_csv",
     "read_tracks_npz",
+    "run_source",
     "summary_json",
     "write_tracks_csv",
     "write_tracks_npz",

@@ -12,6 +12,8 @@ from __future__ import annotations
 import glob as globbing
 import os
 import re
+import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -28,8 +30,10 @@ __all__ = [
     "FrameSource",
     "encode_png",
     "frame_name",
+    "grey_uint8",
     "list_image_files",
     "natural_key",
+    "quiet_decoders",
     "read_frames",
     "stage_frames",
 ]
@@ -71,8 +75,32 @@ def list_image_files(folder: str | os.PathLike[str]) -> list[Path]:
 
 
 @contextmanager
-def _quiet_decoders() -> Iterator[None]:
-    """Silence OpenCV's and FFmpeg's own warnings on stderr while decoding.
+def _native_stderr_silenced() -> Iterator[None]:
+    """Point file descriptor 2 at the null device for the block (main thread only).
+
+    libpng and libtiff print some of their complaints ("libpng error: PNG input buffer
+    is incomplete") with their own fprintf, past OpenCV's log level.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # another thread's output must not vanish with ours
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 2)
+        finally:
+            os.close(null)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+@contextmanager
+def quiet_decoders() -> Iterator[None]:
+    """Silence OpenCV's, FFmpeg's, libpng's and libtiff's own messages on stderr while decoding.
 
     A file they cannot decode is reported once, as our InvalidInputError naming the
     file; their native log lines ("PNG input buffer is incomplete", "moov atom not
@@ -84,9 +112,35 @@ def _quiet_decoders() -> Iterator[None]:
     previous = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
-        yield
+        with _native_stderr_silenced():
+            yield
     finally:
         cv2.utils.logging.setLogLevel(previous)
+
+
+def grey_uint8(image: np.ndarray) -> np.ndarray:
+    """A decoded image as (H, W) uint8 grey.
+
+    Colour becomes grey; 16-bit values are divided by 257; floating-point images (such as
+    32-bit TIFF) are taken to hold intensities in [0, 1] when no value exceeds 1 and in
+    [0, 255] otherwise (NaN becomes 0).
+
+    Examples
+    --------
+    >>> grey_uint8(np.array([[0.0, 0.5, 1.0]], np.float32)).tolist()
+    [[0, 128, 255]]
+    >>> grey_uint8(np.array([[0, 65535]], np.uint16)).tolist()
+    [[0, 255]]
+    """
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    if image.dtype == np.uint8:
+        return image
+    if image.dtype.kind == "f":
+        values = np.nan_to_num(image.astype(np.float64), nan=0.0, posinf=255.0, neginf=0.0)
+        scale = 255.0 if values.max(initial=0.0) <= 1.0 else 1.0
+        return np.clip(np.rint(values * scale), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(image.astype(np.float64) / 257.0), 0, 255).astype(np.uint8)
 
 
 def _decode_image(path: Path) -> np.ndarray:
@@ -94,11 +148,15 @@ def _decode_image(path: Path) -> np.ndarray:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise InvalidInputError(f"cannot read image {path}: {exc.strerror or exc}") from None
-    with _quiet_decoders():
-        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
-    if image is None:
+    image = None
+    if data.size:
+        with quiet_decoders():
+            image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+            if image is None:  # e.g. a 32-bit float TIFF, which only an unchanged read gives
+                image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if image is None or image.ndim not in (2, 3) or image.size == 0:
         raise InvalidInputError(f"{path} is not a readable image (empty, truncated or not an image)")
-    return image
+    return grey_uint8(image)
 
 
 @dataclass(frozen=True)
@@ -135,6 +193,11 @@ class FrameSource:
                 )
             yield image
 
+    @property
+    def paths(self) -> tuple[Path, ...]:
+        """The files the frames are read from: the images, or the video."""
+        return self.files if self.video is None else (self.video,)
+
     def __len__(self) -> int:
         if self.count is None:
             raise TypeError("the number of frames of this video is not known in advance")
@@ -142,7 +205,7 @@ class FrameSource:
 
 
 def _video_frames(path: Path) -> Iterator[np.ndarray]:
-    with _quiet_decoders():
+    with quiet_decoders():
         capture = cv2.VideoCapture(str(path))
     produced = 0
     try:
@@ -204,7 +267,7 @@ def _decoder_reason(exc: Exception) -> str:
 
 
 def _video_count(path: Path) -> int | None:
-    with _quiet_decoders():
+    with quiet_decoders():
         capture = cv2.VideoCapture(str(path))
     try:
         if not capture.isOpened():
@@ -228,7 +291,8 @@ def read_frames(source: str | os.PathLike[str], min_frames: int = MIN_FRAMES) ->
     Returns
     -------
     FrameSource
-        Iterating yields (H, W) uint8 grey frames; colour is converted to grey.
+        Iterating yields (H, W) uint8 grey frames; colour is converted to grey, other
+        depths as :func:`grey_uint8` says.
 
     Raises
     ------

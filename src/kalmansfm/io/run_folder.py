@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..tracking.tracks import Tracks
+from .frames import quiet_decoders
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
 from .perspective import PerspectiveCameras, read_perspective_cameras
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
@@ -71,7 +72,8 @@ class RunFolder:
         """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none."""
         frames = []
         for path in self.frame_paths:
-            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            with quiet_decoders():
+                image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if image is None:
                 raise InvalidInputError(f"{path}: cannot be read as a PNG image")
             if image.dtype != np.uint8:

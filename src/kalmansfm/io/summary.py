@@ -9,9 +9,11 @@ records as objects, non-finite numbers as null) and carries ``schema_version``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import platform
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -27,6 +29,7 @@ from .records import from_json, to_json
 __all__ = [
     "SCHEMA_VERSION",
     "SUMMARY_FILE",
+    "RunSource",
     "RunSummary",
     "Versions",
     "TrackMetrics",
@@ -37,11 +40,13 @@ __all__ = [
     "Similarity",
     "TruthComparison",
     "read_summary",
+    "run_files",
+    "run_source",
     "summary_json",
 ]
 
 #: Version of the ``summary.json`` layout; readers refuse other versions.
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 SUMMARY_FILE = "summary.json"
 
 
@@ -266,6 +271,70 @@ class TruthComparison:
 
 
 @dataclass(frozen=True)
+class RunSource:
+    """What a run was made from: its input files and the options that shape the result.
+
+    Two runs with equal sources read the same files (same resolved paths, sizes and
+    modification times) with the same options; ``batch`` keeps a finished run only when
+    its source equals the one it would run now.  Built by :func:`run_source`.
+
+    Attributes
+    ----------
+    input : the input's resolved absolute path, or a description of a generated input.
+    files : number of files read.
+    total_bytes : their total size.
+    fingerprint : SHA-256 (hex) over each file's resolved path, size and modification time (ns).
+    options : (name, value as compact JSON), sorted by name, of every option that changes the result.
+    """
+
+    input: str
+    files: int = 0
+    total_bytes: int = 0
+    fingerprint: str = ""
+    options: tuple[tuple[str, str], ...] = ()
+
+
+def _option_text(value: Any) -> str:
+    if isinstance(value, np.ndarray):  # start points: their digest, not hundreds of numbers
+        digest = hashlib.sha256(np.ascontiguousarray(value).tobytes()).hexdigest()[:16]
+        return json.dumps(f"{value.dtype}{list(value.shape)} sha256:{digest}")
+    return json.dumps(to_json(value), sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def run_source(input: str | os.PathLike[str], files: Iterable[str | os.PathLike[str]],
+               options: Mapping[str, Any]) -> RunSource:
+    """The :class:`RunSource` of a run that reads ``files`` (its input ``input``) with ``options``.
+
+    ``input`` is resolved when it is a path that exists; a description of a generated
+    input (the built-in scene) is kept as it is.  The files are identified by resolved
+    path, size and modification time, not by content: a file rewritten with new content
+    gets a new time, and hashing gigabytes of video on every ``batch`` rerun is avoided.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "tracks.csv"
+    >>> _ = f.write_text("frame,track_id,x,y\\n")
+    >>> a = run_source(f, [f], {"weighted": True})
+    >>> a.files, a.total_bytes, a.options
+    (1, 19, (('weighted', 'true'),))
+    >>> a == run_source(f, [f], {"weighted": True}), a == run_source(f, [f], {"weighted": False})
+    (True, False)
+    """
+    where = Path(input)
+    described = str(where.resolve()) if where.exists() else os.fspath(input)
+    digest = hashlib.sha256()
+    count = total = 0
+    for file in files:
+        resolved = Path(file).resolve()
+        stat = resolved.stat()
+        digest.update(f"{resolved}\0{stat.st_size}\0{stat.st_mtime_ns}\n".encode("utf-8", "surrogateescape"))
+        count, total = count + 1, total + stat.st_size
+    pairs = tuple(sorted((str(name), _option_text(value)) for name, value in options.items()))
+    return RunSource(input=described, files=count, total_bytes=total, fingerprint=digest.hexdigest(), options=pairs)
+
+
+@dataclass(frozen=True)
 class RunSummary:
     """Everything known about one run, written as ``summary.json``.
 
@@ -273,6 +342,7 @@ class RunSummary:
     ----------
     command : the command that made the run (``demo``, ``track``, ``reconstruct``, ``fuse``, ``scene``, ``batch``).
     input : what was read: a path, or a description of the built-in scene.
+    source : what the run was made from, precisely (resolved input files and options).
     created : ISO time stamp (UTC).
     versions : software versions.
     settings : the tracker's settings (runs that tracked).
@@ -293,6 +363,7 @@ class RunSummary:
 
     command: str
     input: str
+    source: RunSource | None = None
     created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
     versions: Versions = field(default_factory=Versions)
     settings: TrackerSettings | None = None
@@ -310,6 +381,12 @@ class RunSummary:
     warnings: tuple[str, ...] = ()
     schema_version: int = SCHEMA_VERSION
 
+    @property
+    def all_warnings(self) -> tuple[str, ...]:
+        """The run's warnings, then its factorization's: what every command shows the user."""
+        structure = () if self.structure is None else self.structure.warnings
+        return tuple(dict.fromkeys((*self.warnings, *structure)))
+
 
 def summary_json(summary: RunSummary) -> str:
     """The text of ``summary.json`` for ``summary``.
@@ -318,7 +395,7 @@ def summary_json(summary: RunSummary) -> str:
     --------
     >>> text = summary_json(RunSummary(command="track", input="clip.mp4"))
     >>> import json; json.loads(text)["schema_version"]
-    2
+    3
     """
     return json.dumps(to_json(summary), indent=2, allow_nan=False) + "\n"
 
@@ -358,3 +435,33 @@ def read_summary(path: str | os.PathLike[str]) -> RunSummary:
             f"(rerun the command that made it)"
         )
     return from_json(RunSummary, data, str(path))
+
+
+def run_files(folder: str | os.PathLike[str]) -> frozenset[str] | None:
+    """The top-level names of the run in ``folder`` (its summary.json and what that lists), or None.
+
+    None when ``folder`` holds no ``summary.json`` written by kalmansfm.  A summary of any
+    schema version counts, so that a run of another kalmansfm version can be replaced;
+    one that lists no files claims everything in the folder.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> run_files(d) is None
+    True
+    >>> _ = (d / "summary.json").write_text(summary_json(RunSummary("track", "x", files=("frames/a.png", "summary.json"))))
+    >>> sorted(run_files(d))
+    ['frames', 'summary.json']
+    """
+    folder = Path(folder)
+    try:
+        data = json.loads((folder / SUMMARY_FILE).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if not (isinstance(data, dict) and isinstance(data.get("command"), str) and "schema_version" in data):
+        return None
+    listed = data.get("files")
+    if not isinstance(listed, list):
+        return frozenset(entry.name for entry in folder.iterdir())
+    return frozenset({SUMMARY_FILE, *(str(name).split("/")[0] for name in listed)})

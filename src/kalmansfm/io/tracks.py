@@ -44,6 +44,7 @@ from .npz import load_npz
 from .records import from_json, to_json
 
 __all__ = [
+    "MAX_COORDINATE_PX",
     "MAX_INDEX",
     "TRACK_CSV_COLUMNS",
     "OBSERVATION_COLUMNS",
@@ -60,6 +61,9 @@ __all__ = [
 
 #: Frame numbers and track ids index dense arrays: larger numbers are refused (they would need absurd memory).
 MAX_INDEX = 10_000_000
+#: Image coordinates beyond ± this many pixels are refused: no camera has such images, and their
+#: squares (1e300² overflows) would break the factorization's arithmetic.
+MAX_COORDINATE_PX = 1e7
 #: The columns of the tracker's ``tracks.csv``.
 TRACK_CSV_COLUMNS = ("frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y", "status")
 #: The least a tracks CSV holds: one measured position per row (what other tools and converters write).
@@ -301,7 +305,7 @@ def _indices(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np
 
 
 def _floats(file: Path, values: np.ndarray, lines: np.ndarray, name: str, *, finite: bool = True) -> np.ndarray:
-    """Numbers of one column; empty cells are NaN, refused when ``finite``."""
+    """Numbers of one column; empty cells are NaN, refused when ``finite`` (so are magnitudes beyond MAX_COORDINATE_PX)."""
     out = np.empty(len(values))
     for i, text in enumerate(values):
         try:
@@ -310,6 +314,10 @@ def _floats(file: Path, values: np.ndarray, lines: np.ndarray, name: str, *, fin
             raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be a number; got {text!r}") from None
         if finite and not np.isfinite(out[i]):
             raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be finite; got {text.strip()!r}")
+        if finite and abs(out[i]) > MAX_COORDINATE_PX:
+            raise InvalidInputError(
+                f"{file}: line {lines[i]}: {name} must be within ±{MAX_COORDINATE_PX:g} px; got {text.strip()!r}"
+            )
         if not finite and np.isinf(out[i]):
             raise InvalidInputError(f"{file}: line {lines[i]}: {name} must not be infinite; got {text.strip()!r}")
     return out
@@ -371,6 +379,10 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     if bad.any():
         f, p = np.argwhere(bad)[0]
         raise InvalidInputError(f"{file}: positions[{f}, {p}] = {xy[f, p].tolist()} is not finite but status says {TrackStatus(status[f, p]).label}")
+    far = np.abs(np.nan_to_num(xy)) > MAX_COORDINATE_PX
+    if far.any():
+        f, p, _ = np.argwhere(far)[0]
+        raise InvalidInputError(f"{file}: positions[{f}, {p}] = {xy[f, p].tolist()} is beyond ±{MAX_COORDINATE_PX:g} px")
     frames = np.arange(F)
     if "frames" in arrays:
         frames = arrays["frames"]

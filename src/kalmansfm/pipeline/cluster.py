@@ -20,14 +20,24 @@ def check_workers(n_workers: int | None) -> None:
 
 
 @contextmanager
-def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> Iterator[Any]:
+def dask_client(scheduler: str | None = None, n_workers: int | None = None,
+                connect_timeout_s: float = 10.0) -> Iterator[Any]:
     """A ``dask.distributed`` client: of an existing scheduler, or of a local cluster started here.
+
+    Enter it before any output folder is made: a scheduler that cannot be reached is the
+    user's to fix, one line and nothing written.
 
     Parameters
     ----------
     scheduler : address of a running scheduler (``tcp://host:8786``); None starts a local
         cluster of ``n_workers`` single-threaded worker processes, closed on exit.
     n_workers : local workers (default: the number of CPU cores).
+    connect_timeout_s : how long to try to reach ``scheduler``.
+
+    Raises
+    ------
+    InvalidInputError
+        ``n_workers`` below 1, or ``scheduler`` is not an address or cannot be reached.
     """
     check_workers(n_workers)
     # Dask logs every worker start and stop at INFO; keep stderr for our own messages.
@@ -36,7 +46,13 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
     from dask.distributed import Client, LocalCluster
 
     cluster = None
-    if scheduler is None:
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=connect_timeout_s)
+        except (OSError, ValueError, TypeError) as exc:  # TimeoutError is an OSError
+            reason = str(exc).rstrip(".") or type(exc).__name__
+            raise InvalidInputError(f"cannot use the Dask scheduler {scheduler!r}: {reason}") from None
+    else:
         cluster = LocalCluster(
             n_workers=n_workers,
             threads_per_worker=1,
@@ -47,7 +63,11 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
             scheduler_kwargs={"dashboard_address": ":0"},
             silence_logs=logging.WARNING,
         )
-    client = Client(scheduler if scheduler is not None else cluster)
+        try:
+            client = Client(cluster)
+        except BaseException:
+            cluster.close()
+            raise
     try:
         yield client
     finally:

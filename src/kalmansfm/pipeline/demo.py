@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError, NotEnoughDataError, ReportInterrupted
+from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
-from ..io.frames import read_frames, stage_frames
+from ..io.frames import FrameSource, read_frames, stage_frames
 from ..io.intrinsics import intrinsics_from_focal
-from ..io.summary import RunSummary
+from ..io.summary import RunSource, RunSummary, run_source
 from ..report.html import build_report
 from ..scenes import Scene, render_scene
 from ..scenes.files import scene_description, stage_ground_truth
@@ -30,7 +30,7 @@ from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, s
 from .perspective import perspective_metrics, stage_perspective
 from .stage import Stopwatch, stage_structure, stage_summary, stage_tracking
 
-__all__ = ["DemoRun", "describe", "run_demo"]
+__all__ = ["DemoRun", "demo_source", "describe", "run_demo"]
 
 log = logging.getLogger("kalmansfm")
 
@@ -50,7 +50,8 @@ class DemoRun:
     report : path of ``report.html`` (None when the report was not built).
     scene : the built-in scene when it was the input.
     uncertainty : each reconstructed point's covariance and status (None without a reconstruction).
-    report_s : seconds spent building ``report.html`` after the results were written (None without it).
+    report_s : seconds spent building ``report.html`` once the results were staged (None without it);
+        not part of ``summary.total_s``.
     perspective : the calibrated reconstruction (``camera="perspective"``), or None.
     """
 
@@ -65,9 +66,46 @@ class DemoRun:
     perspective: PerspectiveReconstruction | None = None
 
 
-def _load_frames(input: str | os.PathLike[str]) -> list[np.ndarray]:
-    frames = [np.asarray(f) for f in read_frames(input)]
+def _load_frames(sequence: FrameSource) -> list[np.ndarray]:
+    frames = [np.asarray(f) for f in sequence]
     return [f if f.dtype == np.uint8 else np.clip(np.rint(f), 0, 255).astype(np.uint8) for f in frames]
+
+
+def demo_source(
+    sequence: FrameSource | None,
+    *,
+    seed: int = 0,
+    n_frames: int = 30,
+    points: np.ndarray | None = None,
+    track_ids: np.ndarray | None = None,
+    settings: TrackerSettings | None = None,
+    weighted: bool = True,
+    smooth: bool = True,
+    save_frames: bool = True,
+    html: bool = True,
+    camera: str = "affine",
+    focal: float | None = None,
+    perspective: PerspectiveSettings | None = None,
+) -> RunSource:
+    """What a :func:`run_demo` of these arguments is made from (its ``summary.source``).
+
+    ``sequence`` is the footage (:func:`~kalmansfm.io.read_frames`), or None for the
+    built-in scene of ``seed`` and ``n_frames``.  ``batch`` compares it with a finished
+    run's before it keeps that run instead of computing it again.  A perspective run
+    records its focal length and :class:`~kalmansfm.structure.PerspectiveSettings` too.
+
+    Examples
+    --------
+    >>> demo_source(None, seed=1) == demo_source(None, seed=1), demo_source(None, seed=1) == demo_source(None, seed=2)
+    (True, False)
+    """
+    options = {"settings": settings or TrackerSettings(), "weighted": weighted, "smooth": smooth,
+               "save_frames": save_frames, "html": html, "points": points, "track_ids": track_ids, "camera": camera}
+    if camera == "perspective":
+        options.update(focal=focal, perspective=perspective or PerspectiveSettings())
+    if sequence is None:
+        return run_source("built-in scene", [], {**options, "seed": seed, "n_frames": n_frames})
+    return run_source(sequence.description, sequence.paths, options)
 
 
 def run_demo(
@@ -93,7 +131,8 @@ def run_demo(
 
     Parameters
     ----------
-    out_dir : the run folder (created; earlier results are replaced only when the run succeeds).
+    out_dir : the run folder: new, empty or an earlier run, which is replaced whole (report
+        included) only when this run succeeds (:func:`~kalmansfm.io.output_directory`).
     input : a folder of images, a glob or a video; None renders the built-in scene
         (:func:`kalmansfm.scenes.render_scene` with ``seed`` and ``n_frames``),
         whose frame-0 corners are the points tracked and whose ground truth is compared.
@@ -131,11 +170,15 @@ def run_demo(
     if camera == "perspective" and (input is None or focal is None):
         raise InvalidInputError("--camera perspective needs your own sequence (--input; the built-in scene is seen "
                                 "by an affine camera) and its focal length in pixels (--focal)")
-    check_output_directory(out_dir)  # before the work, not after it
+    check_output_directory(out_dir, inputs=[input])  # before the work, not after it
     clock = Stopwatch()
     scene = None
+    options = {"points": points, "track_ids": track_ids, "settings": settings, "weighted": weighted,
+               "smooth": smooth, "save_frames": save_frames, "html": html, "camera": camera, "focal": focal,
+               "perspective": perspective}
     with clock.step("frames"):
         if input is None:
+            made_from = demo_source(None, seed=seed, n_frames=n_frames, **options)
             scene = render_scene(n_frames=n_frames, seed=seed)
             frames = [np.asarray(f) for f in scene.frames]
             first_visible = scene.visible[0]
@@ -143,7 +186,9 @@ def run_demo(
             track_ids = scene.track_ids[first_visible]
             source = scene_description(scene)
         else:
-            frames = _load_frames(input)
+            sequence = read_frames(input)
+            made_from = demo_source(sequence, **options)
+            frames = _load_frames(sequence)
             source = str(input)
     with clock.step("tracking"):
         tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
@@ -183,6 +228,7 @@ def run_demo(
     summary = RunSummary(
         command=command,
         input=source,
+        source=made_from,
         settings=tracks.settings,
         smoothed=tracks.smoothed,
         tracking=tracking_metrics(tracks),
@@ -196,7 +242,7 @@ def run_demo(
             calibrated, measured.observations(), measured.frames, source_k, settings_p),
         warnings=calibrated.warnings if calibrated is not None else () if uncertainty is None else uncertainty.warnings,
     )
-    with output_directory(out_dir) as out:
+    with output_directory(out_dir, inputs=[input]) as out:
         with clock.step("writing"):
             names = stage_frames(out, frames, "frames/") if save_frames else []
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
@@ -209,22 +255,14 @@ def run_demo(
             if scene is not None:
                 names += stage_ground_truth(out, scene)
         summary = stage_summary(out, summary, clock, names)
-
-    report = report_s = None
-    # An earlier run's report describes results that were just replaced: remove it, so that
-    # an interrupt while the new one is built leaves no report rather than a wrong one.
-    (Path(out_dir) / "report.html").unlink(missing_ok=True)
-    if html:
-        # The report is built from the finished run folder (as 'kalmansfm report' rebuilds it) and
-        # shows the run's one timing record; its own time is not part of it.
-        started = time.perf_counter()
-        try:
-            report = build_report(out_dir, progress=progress)
-        except KeyboardInterrupt:
-            raise ReportInterrupted(
-                f"the new results are in {out_dir}, without report.html; run 'kalmansfm report {out_dir}'"
-            ) from None
-        report_s = time.perf_counter() - started
+        report = report_s = None
+        if html:
+            # Built from the staged run, as 'kalmansfm report' builds it from a finished one, so that the
+            # folder gets its report together with its results or not at all. It shows the run's one
+            # timing record; its own time is kept apart (DemoRun.report_s), not a step of the run.
+            started = time.perf_counter()
+            report = build_report(out.staging, progress=progress, shown_as=out.path)
+            report_s = time.perf_counter() - started
     return DemoRun(Path(out_dir), tracks, reconstruction, summary, report, scene, uncertainty, report_s, calibrated)
 
 
@@ -255,8 +293,7 @@ def describe(run: DemoRun) -> str:
         if truth is not None and truth.shape_error_pct is not None:
             line += f"; shape error {truth.shape_error_pct:.2f} % of the object radius"
         lines.append(line)
-        lines.extend(f"warning: {w}" for w in f.warnings)
-    lines.extend(f"warning: {w}" for w in s.warnings)
+    lines.extend(f"warning: {w}" for w in s.all_warnings)
     if s.total_s is not None:
         extra = f" (and {run.report_s:.2f} s to build the report)" if run.report_s is not None else ""
         lines.append(f"time: {s.total_s:.2f} s{extra}")

@@ -18,7 +18,7 @@ from pathlib import Path
 from .._version import __version__
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
-from ..io.summary import RunSummary
+from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..structure import PointUncertainty, Reconstruction
 from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
@@ -122,7 +122,7 @@ def run_reconstruct(
     Parameters
     ----------
     tracks_path : ``tracks.npz``, ``tracks.csv`` or a ``frame,track_id,x,y`` CSV.
-    out_dir : the run folder.
+    out_dir : the run folder: new, empty or an earlier run, replaced whole when this run succeeds.
     camera : ``"affine"``, ``"perspective"`` or ``"auto"`` (see the module notes).
     intrinsics : ``K.csv`` (:mod:`kalmansfm.io.intrinsics`), for perspective and auto …
     focal : … or the focal length in pixels, principal point at the image centre; the image
@@ -148,7 +148,8 @@ def run_reconstruct(
     """
     if camera not in CAMERA_MODELS:
         raise InvalidInputError(f"camera must be one of {', '.join(CAMERA_MODELS)}; got {camera!r}")
-    check_output_directory(out_dir)
+    inputs = [tracks_path] if camera == "affine" else [tracks_path, intrinsics]
+    check_output_directory(out_dir, inputs=inputs)
     clock = Stopwatch()
     name = Path(tracks_path).name
     if camera == "affine":
@@ -157,11 +158,16 @@ def run_reconstruct(
         tracks = read_tracks_for_factorization(tracks_path, smooth=bool(smooth))
         K, source = resolve_intrinsics(tracks.frames, intrinsics=intrinsics, focal=focal, image_size=image_size,
                                        tracks_image_size=tracks.image_size)
+    settings = perspective or PerspectiveSettings()
+    options: dict[str, object] = {"camera": camera, "weighted": weighted, "smooth": smooth,
+                                  "max_iterations": max_iterations, "plot": plot}
+    if camera != "affine":
+        options.update(focal=focal, image_size=image_size, perspective=settings)
+    made_from = run_source(tracks_path, [p for p in inputs if p is not None], options)
     log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
     reconstruction: Reconstruction | None = None
     uncertainty: PointUncertainty | None = None
     rec: PerspectiveReconstruction | None = None
-    settings = perspective or PerspectiveSettings()
     has_weights = weighted and tracks.covariances is not None
     if camera in ("affine", "auto"):
         with clock.step("factorization"):
@@ -187,20 +193,20 @@ def run_reconstruct(
     use_perspective = rec is not None and (camera == "perspective" or (choice or "").startswith("perspective"))
     if use_perspective:
         assert rec is not None
-        summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
-                             smoothed=tracks.smoothed,
+        summary = RunSummary(command="reconstruct", input=str(tracks_path), source=made_from,
+                             settings=tracks.settings, smoothed=tracks.smoothed,
                              perspective=perspective_metrics(rec, tracks.observations(), tracks.frames, source,
                                                              settings, camera_choice=choice),
                              warnings=rec.warnings)
     else:
         assert reconstruction is not None and uncertainty is not None
-        summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
-                             smoothed=tracks.smoothed,
+        summary = RunSummary(command="reconstruct", input=str(tracks_path), source=made_from,
+                             settings=tracks.settings, smoothed=tracks.smoothed,
                              structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed,
                                                          uncertainty=uncertainty),
                              warnings=(*(() if choice is None else (f"--camera auto chose {choice}",)),
                                        *uncertainty.warnings))
-    with output_directory(out_dir) as out:
+    with output_directory(out_dir, inputs=inputs) as out:
         with clock.step("writing"):
             if use_perspective:
                 names = stage_perspective(out, rec, tracks.frames, tracks.track_ids,  # type: ignore[arg-type]

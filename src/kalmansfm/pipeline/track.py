@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames
-from ..io.summary import RunSummary
+from ..io.summary import RunSummary, run_source
 from ..io.tracks import check_points_inside, read_points_csv
 from ..tracking import TrackerSettings, Tracks, smooth_tracks, track
 from .evaluate import tracking_metrics
@@ -40,7 +40,8 @@ def run_track(
     Parameters
     ----------
     input : a folder of images (natural order), a glob or a video.
-    out_dir : the run folder (files appear together when the run succeeds).
+    out_dir : the run folder: new, empty or an earlier run, which is replaced whole when this
+        run succeeds (:func:`~kalmansfm.io.output_directory`).
     points : a CSV with ``x,y[,track_id]`` of frame-0 points; None detects corners.
     settings : the tracker's settings (default settings when None).
     smooth : False, True (fixed-interval RTS smoothing) or a lag L (fixed-lag smoothing).
@@ -50,13 +51,13 @@ def run_track(
     --------
     >>> import tempfile, pathlib
     >>> from kalmansfm.scenes import render_scene, write_scene
-    >>> scene_dir = pathlib.Path(tempfile.mkdtemp())
-    >>> _ = write_scene(render_scene(n_frames=5), scene_dir)
-    >>> run = run_track(scene_dir, scene_dir / "out", points=scene_dir / "points.csv")
+    >>> base = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = write_scene(render_scene(n_frames=5), base / "scene")
+    >>> run = run_track(base / "scene", base / "tracks", points=base / "scene" / "points.csv")
     >>> run.summary.tracking.frames, "tracks.npz" in run.summary.files
     (5, True)
     """
-    check_output_directory(out_dir)
+    check_output_directory(out_dir, inputs=[input, points])
     clock = Stopwatch()
     frames = read_frames(input)
     start = track_ids = None
@@ -64,6 +65,8 @@ def run_track(
         start, track_ids = read_points_csv(points)
         first = next(iter(frames))
         check_points_inside(start, first.shape[1], first.shape[0], str(points))
+    source = run_source(input, [*frames.paths, *([points] if points is not None else [])],
+                        {"settings": settings or TrackerSettings(), "smooth": smooth})
     with clock.step("tracking"):
         tracks = track(frames, start, track_ids=track_ids, settings=settings, progress=progress)
     if smooth is not False:
@@ -72,9 +75,9 @@ def run_track(
     last_frame = None
     for last_frame in frames:  # the last frame for the picture (frames are decoded lazily)
         pass
-    summary = RunSummary(command="track", input=str(input), settings=tracks.settings, smoothed=tracks.smoothed,
-                         tracking=tracking_metrics(tracks))
-    with output_directory(out_dir) as out:
+    summary = RunSummary(command="track", input=str(input), source=source, settings=tracks.settings,
+                         smoothed=tracks.smoothed, tracking=tracking_metrics(tracks))
+    with output_directory(out_dir, inputs=[input, points]) as out:
         with clock.step("writing"):
             names = stage_tracking(out, tracks, frames, last_frame=last_frame)  # type: ignore[arg-type]
         summary = stage_summary(out, summary, clock, names)

@@ -16,6 +16,7 @@ import json
 import logging
 import math
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InvalidInputError
-from ..io.atomic import output_directory
+from ..io.atomic import atomic_write
 from ..io.frames import encode_png
 from ..io.records import to_json
 from ..io.run_folder import RunFolder, load_run
@@ -755,7 +756,7 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
 
 
 def build_report(
-    run_dir: str | Path, *, out_name: str = "report.html", progress: bool = False
+    run_dir: str | Path, *, out_name: str = "report.html", progress: bool = False, shown_as: str | Path | None = None
 ) -> Path:
     """Write the self-contained HTML report of a finished run folder.
 
@@ -765,14 +766,18 @@ def build_report(
         A run folder: ``summary.json`` plus the files it lists (frames, tracks,
         structure, motion, ground truth, tables); see :func:`kalmansfm.io.load_run`.
     out_name : str
-        File name of the report inside ``run_dir``; it may not be one of the run's files.
+        File name of the report inside ``run_dir``: a plain ``.html`` name that is not one of
+        the run's files.
     progress : bool
         Show a progress bar on stderr while frames are drawn.
+    shown_as : path, optional
+        The folder the run will be known by, when ``run_dir`` is the staging folder of a run
+        being built (:class:`kalmansfm.io.OutputDirectory`); the report names it.
 
     Returns
     -------
     Path
-        The report, ``run_dir / out_name``, written atomically.
+        The report, ``shown_as / out_name`` (default ``run_dir / out_name``), written atomically.
 
     Raises
     ------
@@ -796,11 +801,17 @@ def build_report(
     if name.name != out_name or not out_name or out_name in (".", ".."):
         raise InvalidInputError(f"out_name must be a plain file name; got {out_name!r}")
     run = load_run(run_dir)
-    if out_name == SUMMARY_FILE or out_name in run.summary.files:
+    owned = {SUMMARY_FILE, *(f.split("/")[0] for f in run.summary.files)}
+    if out_name in owned:
         raise InvalidInputError(f"out_name {out_name} would overwrite the run's own {out_name}; choose another name")
-    document = render_report(run, progress=progress)
-    with output_directory(run.path) as out:
-        out.write_text(out_name, document)
-    report = run.path / out_name
-    log.info("report: %s (%.1f MB)", report, report.stat().st_size / 1e6)
+    if name.suffix.lower() != ".html":
+        raise InvalidInputError(f"out_name must end in .html (the report is an HTML file); got {out_name!r}")
+    target = run.path / out_name
+    if target.exists() and not target.is_file():
+        raise InvalidInputError(f"out_name {out_name}: {target} exists and is not a file; choose another name")
+    folder = run.path if shown_as is None else Path(shown_as)
+    document = render_report(replace(run, path=folder), progress=progress)
+    atomic_write(target, lambda path: path.write_text(document, encoding="utf-8"))
+    report = folder / out_name
+    log.info("report: %s (%.1f MB)", report, target.stat().st_size / 1e6)
     return report

@@ -8,7 +8,7 @@ from pathlib import Path
 from ..io.atomic import OutputDirectory, output_directory
 from ..io.frames import stage_frames
 from ..io.ground_truth import ground_truth_files
-from ..io.summary import RunSummary, summary_json
+from ..io.summary import RunSummary, run_source, summary_json
 from .polyhedron import Scene
 
 __all__ = ["scene_description", "stage_ground_truth", "write_scene"]
@@ -30,8 +30,8 @@ def scene_description(scene: Scene) -> str:
 def write_scene(scene: Scene, path: str | os.PathLike[str]) -> list[Path]:
     """Write a scene's frames as PNG and its ground truth as CSV into the folder ``path``.
 
-    The files appear together or not at all (see :func:`kalmansfm.io.output_directory`),
-    with a ``summary.json`` that records the rendering parameters and lists them.
+    The folder is replaced whole, or not at all (see :func:`kalmansfm.io.output_directory`),
+    with a ``summary.json`` that records the rendering parameters and lists the files.
 
     Returns
     -------
@@ -53,6 +53,7 @@ def write_scene(scene: Scene, path: str | os.PathLike[str]) -> list[Path]:
     with output_directory(path) as out:
         names = stage_frames(out, list(scene.frames)) + stage_ground_truth(out, scene)
         summary = RunSummary(command="scene", input=scene_description(scene), scene=scene.parameters,
+                             source=run_source(scene_description(scene), [], {"scene": scene.parameters}),
                              files=tuple(names) + ("summary.json",))
         out.write_text("summary.json", summary_json(summary))
     return [Path(path) / name for name in summary.files]

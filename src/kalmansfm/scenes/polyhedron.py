@@ -31,12 +31,14 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.ground_truth import GroundTruth
 from .._validation import check_count
 
-__all__ = ["Occluder", "Scene", "render_scene", "SCENARIOS"]
+__all__ = ["MAX_IMAGE_SIDE", "Occluder", "Scene", "render_scene", "SCENARIOS"]
 
 #: Motion variants of the scene: ``"default"`` stays in the image;
 #: ``"exit"`` accelerates the object out through the left border, so the
 #: markers leave the image one after the other in the last frames.
 SCENARIOS = ("default", "exit")
+#: Largest width or height of a rendered frame (a 4096×3072 frame takes ~6 s to draw; 40000×40000 would take hours).
+MAX_IMAGE_SIDE = 4096
 
 _MARKER_INTENSITY = 20.0
 
@@ -304,8 +306,10 @@ def _check_size(image_size: Any) -> tuple[int, int]:
         ok = (width, height) == tuple(image_size)
     except (TypeError, ValueError):
         ok = False
-    if not ok or width < 32 or height < 32:
-        raise InvalidInputError(f"image_size must be (width, height) with integers >= 32; got {image_size!r}")
+    if not ok or not (32 <= width <= MAX_IMAGE_SIDE and 32 <= height <= MAX_IMAGE_SIDE):
+        raise InvalidInputError(
+            f"image_size must be (width, height) with integers in 32 … {MAX_IMAGE_SIDE}; got {image_size!r}"
+        )
     return width, height
 
 
@@ -366,7 +370,7 @@ def render_scene(
     n_frames : int
         Number of frames F (>= 3).
     image_size : (int, int)
-        (width, height) in pixels, each >= 32.  Object size and motion scale
+        (width, height) in pixels, each in 32 … ``MAX_IMAGE_SIDE`` (4096).  Object size and motion scale
         with ``min(width / 320, height / 240)``; the marker size does not.
     seed : int
         Seed of the textures and of the pixel noise; the geometry and motion

@@ -155,7 +155,7 @@ def factorize(
         Wrong shape, infinite values, negative or non-finite weights, ``max_iterations``
         below 1 or a negative ``tol``.
     NotEnoughDataError
-        Fewer than 3 usable frames or 4 usable points.
+        Fewer than 3 usable frames or 4 usable points, or all points at one place in every frame.
 
     Examples
     --------
@@ -207,6 +207,10 @@ def factorize(
                 f"factorize needs >= 3 frames and >= 4 points linked by observations; "
                 f"reached {int(f_ok.sum())} frames and {int(p_ok.sum())} points"
             )
+    if not sv[0] > 0:
+        raise NotEnoughDataError(
+            "factorize needs points that spread out; in every frame all observed points are at one place"
+        )
     _check_rank(sv, motion_aff[f_ok], shape_aff[p_ok], notes)
 
     rows = motion_aff[f_ok].reshape(-1, 3)

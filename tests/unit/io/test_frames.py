@@ -90,3 +90,16 @@ def test_undecodable_video_message_is_the_same_with_or_without_pyav(tmp_path, mo
     bogus.write_bytes(b"\x00garbage" * 100)
     with pytest.raises(InvalidInputError, match=r"broken\.mp4 is not a decodable video"):
         list(read_frames(bogus))
+
+
+def test_float32_tiff_that_opencv_reads_is_a_frame(tmp_path):
+    """Issue 20: 32-bit float TIFFs were refused as 'not an image' although OpenCV reads them."""
+    ramp = np.linspace(0.0, 1.0, 8 * 6, dtype=np.float32).reshape(6, 8)
+    for k in range(3):
+        assert cv2.imwrite(str(tmp_path / f"f{k}.tiff"), ramp * (k + 1) / 3)
+    assert cv2.imdecode(np.fromfile(tmp_path / "f0.tiff", np.uint8), cv2.IMREAD_GRAYSCALE) is None
+    frames = list(read_frames(tmp_path))
+    assert all(f.dtype == np.uint8 and f.shape == (6, 8) for f in frames)
+    # [0, 1] intensities scaled by 255
+    np.testing.assert_array_equal(frames[2], np.rint(ramp * 255).astype(np.uint8))
+    np.testing.assert_array_equal(frames[0], np.rint(ramp / 3 * 255).astype(np.uint8))

@@ -115,7 +115,7 @@ def test_frames_without_tracks_show_the_raw_strip(tmp_path):
         (None, r"summary\.json: not found"),
         ("{not json", r"summary\.json: is not valid JSON \(line 1"),
         ("[1, 2]", r"summary\.json: expected a JSON object"),
-        ('{"command": "demo"}', r"summary\.json: schema_version None is not 2"),
+        ('{"command": "demo"}', r"summary\.json: schema_version None is not 3"),
         (_SUMMARY[:-1] + ', "tracking": [1]}', r"summary\.json\.tracking: expected an object"),
         (_SUMMARY[:-1] + ', "files": ["a.csv", 3]}', r"summary\.json\.files\[1\]: expected a string"),
         (_SUMMARY[:-1] + ', "colour": "red"}', r"summary\.json: unknown field\(s\) colour"),

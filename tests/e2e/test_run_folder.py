@@ -1,0 +1,112 @@
+"""What a run folder promises, command by command (docs/robustness.md, "Guarantees").
+
+* no stale files: after a successful rerun the folder holds exactly the files its summary.json
+  lists (and the report), whatever an earlier run left there;
+* identity: summary.json records what the run was made from (resolved input, files, options);
+* the report of a run mentions nothing of an earlier run in the same folder.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from kalmansfm.cli.main import main
+from kalmansfm.io import read_summary
+
+ROOT = Path(__file__).resolve().parents[2]
+SRC = ROOT / "src"
+HOUSE = ROOT.parent / "shared" / "data" / "cmu_house" / "images"
+REPORT_TRACKS = SRC / "kalmansfm" / "data" / "report_polyhedron_tracks.csv"
+
+
+def _files(folder: Path) -> set[str]:
+    return {p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file()}
+
+
+def _owns_exactly_its_files(folder: Path) -> None:
+    """The folder holds what its summary lists (plus report.html), nothing more, and no temporaries beside it."""
+    listed = set(read_summary(folder / "summary.json").files)
+    assert _files(folder) - {"report.html"} == listed
+    assert [p.name for p in folder.parent.iterdir() if p.name.startswith(f".{folder.name}.")] == []
+
+
+def _run(*argv: str) -> None:
+    assert main([*argv, "--quiet"]) == 0
+
+
+def test_reconstruct_without_plot_over_a_run_with_plot_leaves_no_old_picture(tmp_path):
+    out = tmp_path / "shape"
+    _run("reconstruct", str(REPORT_TRACKS), "--out", str(out))
+    assert (out / "structure.png").exists()
+    _run("reconstruct", str(REPORT_TRACKS), "--out", str(out), "--no-plot")
+    assert not (out / "structure.png").exists()
+    _owns_exactly_its_files(out)
+
+
+def test_a_shorter_scene_over_a_longer_one_leaves_only_its_own_frames(tmp_path):
+    out = tmp_path / "scene"
+    _run("scene", "--out", str(out), "--frames", "9")
+    _run("scene", "--out", str(out), "--frames", "4")
+    assert sorted(p.name for p in out.glob("frame_*.png")) == [f"frame_{k:03d}.png" for k in range(4)]
+    _owns_exactly_its_files(out)
+    assert [name for name, _ in read_summary(out / "summary.json").source.options] == ["scene"]
+
+
+@pytest.mark.skipif(not HOUSE.is_dir(), reason="needs ../shared/data/cmu_house")
+def test_demo_runs_of_different_inputs_into_one_folder_do_not_mix(tmp_path):
+    """Issue 16.1: the second report mentions nothing of the first, in either order."""
+    clip = tmp_path / "house"
+    clip.mkdir()
+    for k in range(8):
+        shutil.copy(HOUSE / f"house.seq{k}.png", clip / f"house.seq{k}.png")
+    out = tmp_path / "kalmansfm-demo"
+
+    _run("demo", "--out", str(out), "--frames", "6")
+    assert (out / "ground_truth_tracks.csv").exists()
+    _run("demo", "--out", str(out), "--input", str(clip))
+    _owns_exactly_its_files(out)
+    assert not list(out.glob("ground_truth_*")) and len(list((out / "frames").iterdir())) == 8
+    report = (out / "report.html").read_text()
+    assert "ground_truth" not in report and "Comparison with ground truth" not in report
+    assert "built-in scene" not in report
+
+    _run("demo", "--out", str(out), "--frames", "6")  # and back: no frames of the clip stay
+    _owns_exactly_its_files(out)
+    assert len(list((out / "frames").iterdir())) == 6
+    report = (out / "report.html").read_text()
+    assert str(clip) not in report and "house.seq" not in report
+
+
+def test_every_command_records_what_it_was_made_from(tmp_path):
+    scene = tmp_path / "scene"
+    _run("scene", "--out", str(scene), "--frames", "5")
+    _run("track", str(scene), "--out", str(tmp_path / "tracks"), "--points", str(scene / "points.csv"))
+    _run("reconstruct", str(tmp_path / "tracks" / "tracks.npz"), "--out", str(tmp_path / "shape"))
+    track = read_summary(tmp_path / "tracks" / "summary.json").source
+    assert track.input == str(scene.resolve())
+    assert track.files == 6  # 5 frames and points.csv
+    assert dict(track.options)["smooth"] == "false"
+    shape = read_summary(tmp_path / "shape" / "summary.json").source
+    assert shape.input == str((tmp_path / "tracks" / "tracks.npz").resolve()) and shape.files == 1
+    assert dict(shape.options)["weighted"] == "true"
+    assert read_summary(scene / "summary.json").source.input == "built-in scene (seed 0, 5 frames)"
+
+
+def test_importing_the_command_line_loads_nothing_heavy():
+    """The console entry point sets up Ctrl-C and SIGTERM handling before NumPy, OpenCV and argparse load."""
+    code = "import sys, kalmansfm.cli.main; print(sorted(m for m in ('numpy', 'cv2', 'argparse', 'kalmansfm.io') if m in sys.modules))"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                            env={"PYTHONPATH": str(SRC), "PATH": ""})
+    assert result.stdout.strip() == "[]"
+
+
+def test_every_public_name_loads_on_first_use():
+    import kalmansfm
+
+    assert all(getattr(kalmansfm, name) is not None for name in kalmansfm.__all__)
+    assert set(kalmansfm.__all__) <= set(dir(kalmansfm))
