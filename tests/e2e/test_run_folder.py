@@ -13,10 +13,17 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
+from kalmansfm.io.cameras import cameras_csv
+from kalmansfm.io.intrinsics import intrinsics_csv
+from kalmansfm.io.tracks import observations_csv
+from kalmansfm.scenes.known_cameras import known_camera_scene
+from kalmansfm.scenes.perspective import perspective_scene
+from kalmansfm.structure.pinhole import CameraSet
 
 ROOT = Path(__file__).resolve().parents[2]
 SRC = ROOT / "src"
@@ -110,3 +117,39 @@ def test_every_public_name_loads_on_first_use():
 
     assert all(getattr(kalmansfm, name) is not None for name in kalmansfm.__all__)
     assert set(kalmansfm.__all__) <= set(dir(kalmansfm))
+
+
+def test_fuse_records_its_two_inputs_and_replaces_an_earlier_run_whole(tmp_path):
+    scene = known_camera_scene(points=30, views=4, seed=0)
+    frames = np.arange(4)
+    (tmp_path / "cameras.csv").write_text(cameras_csv(CameraSet(scene.cameras.matrices, frames)))
+    (tmp_path / "tracks.csv").write_text(observations_csv(scene.observations, frames, np.arange(30)))
+    out = tmp_path / "fused"
+    inputs = [str(tmp_path / "tracks.csv"), "--cameras", str(tmp_path / "cameras.csv"), "--out", str(out)]
+    _run("fuse", *inputs)
+    assert (out / "fusion.png").exists()
+    _run("fuse", *inputs, "--no-plot", "--method", "batch")
+    assert not (out / "fusion.png").exists()
+    _owns_exactly_its_files(out)
+    source = read_summary(out / "summary.json").source
+    assert source.input == str((tmp_path / "tracks.csv").resolve()) and source.files == 2
+    options = dict(source.options)
+    assert options["plot"] == "false" and '"method":"batch"' in options["settings"]
+
+
+def test_a_perspective_reconstruct_over_an_affine_one_records_the_intrinsics_and_leaves_no_motion(tmp_path):
+    scene = perspective_scene(frames=5, points=60, pixel_std=0.5, seed=4)
+    frames = np.arange(5)
+    (tmp_path / "tracks.csv").write_text(observations_csv(scene.observations, frames, np.arange(60)))
+    (tmp_path / "K.csv").write_text(intrinsics_csv(frames, scene.intrinsics))
+    out = tmp_path / "shape"
+    _run("reconstruct", str(tmp_path / "tracks.csv"), "--out", str(out), "--no-plot")
+    assert (out / "motion.csv").exists()
+    _run("reconstruct", str(tmp_path / "tracks.csv"), "--out", str(out), "--no-plot", "--camera", "perspective",
+         "--intrinsics", str(tmp_path / "K.csv"))
+    assert (out / "cameras.csv").exists() and not (out / "motion.csv").exists()
+    _owns_exactly_its_files(out)
+    source = read_summary(out / "summary.json").source
+    assert source.files == 2  # the tracks and K.csv
+    options = dict(source.options)
+    assert options["camera"] == '"perspective"' and "perspective" in options

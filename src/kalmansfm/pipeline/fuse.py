@@ -13,7 +13,7 @@ from .._version import __version__
 from ..io.atomic import check_output_directory, output_directory
 from ..io.cameras import CameraObservations, match_cameras, read_cameras
 from ..io.fusion import history_csv, rejected_csv
-from ..io.summary import FusionMetrics, RunSummary
+from ..io.summary import FusionMetrics, RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
 from ..structure.point_fusion import FusedStructure, FusionSettings, fuse_with_settings
@@ -100,7 +100,8 @@ def run_fuse(
         measured rows are observations.
     cameras_path : a cameras CSV (:mod:`kalmansfm.io.cameras`); frames of the tracks without a
         camera are skipped with one warning.
-    out_dir : the run folder.
+    out_dir : the run folder: new, empty or an earlier run, replaced whole when this run succeeds
+        (:func:`~kalmansfm.io.output_directory`).
     settings : :class:`~kalmansfm.structure.point_fusion.FusionSettings` (method, pixel noise,
         outlier probability, chunk size); the history is always kept (history.csv).
     scheduler, n_workers : fuse the chunks on Dask — an existing scheduler's address, or a
@@ -124,11 +125,14 @@ def run_fuse(
     """
     settings = replace(settings or FusionSettings(), history=True)
     check_workers(n_workers)
-    check_output_directory(out_dir)
+    inputs = [tracks_path, cameras_path]
+    check_output_directory(out_dir, inputs=inputs)
     clock = Stopwatch()
     with clock.step("reading"):
         cameras = read_cameras(cameras_path)
         tracks = read_tracks(tracks_path)
+        # where the chunks are fused (scheduler, workers) does not change the result
+        source = run_source(tracks_path, inputs, {"settings": settings, "plot": plot})
         data = match_cameras(tracks.observations(), tracks.frames, tracks.track_ids, cameras, source=str(tracks_path))
     warnings = []
     if data.frames_without_camera.size:
@@ -145,10 +149,10 @@ def run_fuse(
             with dask_client(scheduler, n_workers) as client:
                 fused = fuse_with_settings(data.observations, data.cameras, settings,
                                            executor=ScatteringExecutor(client))
-    summary = RunSummary(command="fuse", input=f"{tracks_path} with cameras {cameras_path}",
+    summary = RunSummary(command="fuse", input=f"{tracks_path} with cameras {cameras_path}", source=source,
                          fusion=fusion_metrics(data, fused, settings), warnings=tuple(warnings))
     frames, ids = data.cameras.frames, data.track_ids
-    with output_directory(out_dir) as out:
+    with output_directory(out_dir, inputs=inputs) as out:
         with clock.step("writing"):
             names = stage_points(out, ids, fused.points, fused.covariances, fused.views, fused.status,
                                  fused.reprojection_rms, comment=f"kalmansfm {__version__} fuse {Path(tracks_path).name}")
