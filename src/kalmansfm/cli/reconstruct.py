@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
           + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")
     print(f"rank-3 residual: {s.residual_rms_px:.4f} px RMS")
-    for note in (*s.warnings, *result.summary.warnings):
+    for note in result.summary.all_warnings:
         print(f"warning: {note}")
     print(f"wrote {args.out}")
     return 0
@@ -101,6 +101,6 @@ def _print_perspective(result) -> None:
     print(f"intrinsics: {p.intrinsics}")
     print(f"inliers: {p.inliers} of {p.observations} observations; pixel noise sigma {p.pixel_std_px:.3g} px; "
           f"reprojection RMS {p.reprojection_rms_px:.3g} px")
-    for note in result.summary.warnings:
+    for note in result.summary.all_warnings:
         print(f"warning: {note}")
     print(f"wrote {result.out_dir}")

@@ -812,6 +812,4 @@ def build_report(
     folder = run.path if shown_as is None else Path(shown_as)
     document = render_report(replace(run, path=folder), progress=progress)
     atomic_write(target, lambda path: path.write_text(document, encoding="utf-8"))
-    report = folder / out_name
-    log.info("report: %s (%.1f MB)", report, target.stat().st_size / 1e6)
-    return report
+    return folder / out_name
