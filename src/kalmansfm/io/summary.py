@@ -1,7 +1,7 @@
 """``summary.json``: the one record of a run, its schema, its writer and its reader.
 
-Every command that writes a run folder (``demo``, ``track``, ``reconstruct``, ``scene``,
-each sequence of ``batch``) describes it with one :class:`RunSummary`; the report, the
+Every command that writes a run folder (``demo``, ``track``, ``reconstruct``, ``fuse``,
+``scene``, each sequence of ``batch``) describes it with one :class:`RunSummary`; the report, the
 batch runner and anyone scripting against the folder read it back with
 :func:`read_summary`.  The JSON layout is the record's own (field names as keys, nested
 records as objects, non-finite numbers as null) and carries ``schema_version``.
@@ -45,7 +45,10 @@ __all__ = [
     "summary_json",
 ]
 
-#: Version of the ``summary.json`` layout; readers refuse other versions.
+#: Version of the ``summary.json`` layout; readers refuse other versions.  Version 3 added the
+#: run's ``source`` and the optional ``fusion`` and ``perspective`` records and
+#: ``StructureMetrics.noise_std`` / ``unreliable_points``; a version-2 file lacks the source
+#: ``batch`` compares, so it is refused (rerun the command) rather than read in part.
 SCHEMA_VERSION = 3
 SUMMARY_FILE = "summary.json"
 
@@ -355,7 +358,8 @@ class RunSummary:
     truth : the comparison with ground truth, when there is one.
     scene : the parameters of a rendered built-in scene.
     timings_s : seconds per step, in order.
-    total_s : the run's wall-clock time from start to the last file.
+    total_s : the run's wall-clock time from start to the last result file; building
+        ``report.html`` is not part of it (``demo`` prints that time apart).
     files : the files of the run folder this run wrote (relative paths); readers use only these.
     warnings : things the user should know about the result.
     schema_version : the layout version.
