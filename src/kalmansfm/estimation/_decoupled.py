@@ -133,21 +133,32 @@ def _predict_cov(p00, p01, p11, dt, q, o00, o01, o11, tmp) -> None:
 
 
 class DecoupledUpdate:
-    """What one decoupled update produced, expanded to the public (N, ...) arrays on access."""
+    """What one decoupled update produced, expanded to the public (N, ...) arrays on access.
+
+    ``C_prior`` is the prior's covariance blocks, or a function that computes them
+    (the compiled step keeps the prior virtual until someone asks).  ``Y`` (2, N) is
+    z - H x⁻ with 0 or NaN where not measured; ``missing`` (N, 2) says where, or is
+    None: then the components where ``Y`` is NaN are the missing ones.
+    """
 
     def __init__(self, C_prior, Y, r, missing, N):
-        self._C_prior = C_prior
-        self._Y = Y  # (2, N) z - H x⁻, 0 where not measured (NaN restored by the y property)
+        self._C_prior_source = C_prior
+        self._Y = Y
         self._r = r  # (2,) or (2, N) measurement variances of x and y
-        self._missing = missing  # (N, 2) bool
+        self._missing = missing
         self._N = N
         self._cache: dict[str, np.ndarray] = {}
 
     @property
+    def _C_prior(self) -> np.ndarray:
+        if callable(self._C_prior_source):
+            self._C_prior_source = self._C_prior_source()
+        return self._C_prior_source
+
+    @property
     def _measured(self) -> np.ndarray:
         if "measured" not in self._cache:
-            self._cache["measured"] = (np.ones((self._N, 2), dtype=bool) if self._missing is None
-                                       else ~self._missing)
+            self._cache["measured"] = (~np.isnan(self._Y.T) if self._missing is None else ~self._missing)
         return self._cache["measured"]
 
     def _s(self) -> np.ndarray:
@@ -166,9 +177,8 @@ class DecoupledUpdate:
     @property
     def y(self) -> np.ndarray:
         if "y" not in self._cache:
-            Y = self._Y
-            if self._missing is not None:
-                Y = np.where(self._missing.T, np.nan, Y)
+            # with missing None, Y already holds NaN where not measured
+            Y = self._Y if self._missing is None else np.where(self._missing.T, np.nan, self._Y)
             self._cache["y"] = Y.T
         return self._cache["y"]
 
