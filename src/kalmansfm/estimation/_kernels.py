@@ -37,7 +37,9 @@ the loop vectorisable.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numba
 import numpy as np
@@ -257,7 +259,7 @@ def cv_predict(X, C, dt, q, u, Xo, Co):
 # tracks are split in ranges between threads.
 
 CHUNK = 128
-TRACKS_PER_THREAD = 8192  # fewer tracks than this per thread: one thread (starting threads costs ~50 µs)
+TRACKS_PER_THREAD = 8192  # fewer tracks than this per thread: fewer threads (see threads_for)
 
 
 @njit(**_JIT)
@@ -537,6 +539,25 @@ def _over_threads(kernel, N, *args):
     cuts = [round(N * p / parts / CHUNK) * CHUNK for p in range(parts + 1)]
     cuts[-1] = N
     return list(_threads().map(lambda p: kernel(*args, cuts[p], cuts[p + 1]), range(parts)))
+
+
+@contextmanager
+def threads_for(N: int) -> Iterator[None]:
+    """Run the kernels inside on at most one thread per TRACKS_PER_THREAD tracks (numba's count otherwise).
+
+    Below that, starting and joining threads costs more than it saves, and on a busy
+    machine a second thread may wait for a core.
+    """
+    before = numba.get_num_threads()
+    wanted = max(1, min(before, N // TRACKS_PER_THREAD))
+    if wanted == before:
+        yield
+        return
+    numba.set_num_threads(wanted)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
 
 
 _POOL: list[ThreadPoolExecutor] = []

@@ -487,7 +487,8 @@ def _cv_prior(X, C, dt, q, u, take) -> tuple[np.ndarray, np.ndarray]:
     """The decoupled prior (X⁻, C⁻) of the posterior (X, C); C (B, 3) shared or (B, 3, N)."""
     Xp = take(X.shape, X.dtype)
     Cp = take(C.shape, C.dtype) if C.ndim == 3 else np.empty_like(C)
-    _kernels.cv_predict(X, C if C.ndim == 3 else C[:, :, None], dt, q, u, Xp, Cp if C.ndim == 3 else Cp[:, :, None])
+    with _kernels.threads_for(X.shape[1]):
+        _kernels.cv_predict(X, C if C.ndim == 3 else C[:, :, None], dt, q, u, Xp, Cp if C.ndim == 3 else Cp[:, :, None])
     return Xp, Cp
 
 
@@ -495,14 +496,15 @@ def _dense_prior(x, P, F, Q, u, take) -> tuple[np.ndarray, np.ndarray]:
     """The general form's prior (x⁻, P⁻) of the posterior (x (n, N), P (n, n) shared or (n, n, N))."""
     xp = take(x.shape, x.dtype)
     u = _no_input(x) if u is None else u
-    if P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
-        _kernels.dense_predict_states(x, _plain(F), u, xp)
-        # the shared covariance's prior as kalman_predict computes it
-        return xp, _symmetrize(F @ P @ F.T + Q)
-    if P.ndim == 2:
-        P = _per_track(P, x.shape[1])
-    Pp = take(P.shape, P.dtype)
-    _kernels.dense_predict(x, P, _stacked(F), _stacked(Q), u, xp, Pp)
+    with _kernels.threads_for(x.shape[1]):
+        if P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
+            _kernels.dense_predict_states(x, _plain(F), u, xp)
+            # the shared covariance's prior as kalman_predict computes it
+            return xp, _symmetrize(F @ P @ F.T + Q)
+        if P.ndim == 2:
+            P = _per_track(P, x.shape[1])
+        Pp = take(P.shape, P.dtype)
+        _kernels.dense_predict(x, P, _stacked(F), _stacked(Q), u, xp, Pp)
     return xp, Pp
 
 
@@ -530,6 +532,28 @@ def _as_complex(z: np.ndarray) -> np.ndarray:
     """(N, 2) positions as (N,) complex x + i y, a view (the compiled loop reads them as one stream)."""
     z = _plain(z)
     return z.view(np.complex128 if z.dtype == np.float64 else np.complex64)[:, 0]
+
+
+def _clearly_positive_definite_blocks(P: np.ndarray) -> bool:
+    """True when every (4, 4) matrix of the stack P is exactly symmetric, has no x–y coupling and the
+    smallest eigenvalue of each of its two 2×2 blocks, at least det / trace, is above 1e-9 of the
+    matrix's largest entry (far above the rounding of an eigen-decomposition).
+
+    The tracker hands over such a stack each time tracks end; this test costs a few passes over
+    it, where ``check_covariance`` takes an eigen-decomposition per matrix.  False means "not
+    shown here", and ``check_covariance`` decides (and words the error).
+    """
+    if P.ndim != 3 or P.shape[-2:] != (4, 4) or not np.isfinite(P).all():
+        return False
+    flat = P.reshape(P.shape[0], 16)
+    if not np.array_equal(flat[:, [2, 3, 7, 1, 6, 11]], flat[:, [8, 12, 13, 4, 9, 14]]):  # Pᵀ = P
+        return False
+    blocks = _decoupled.axis_blocks(P)
+    if blocks is None:
+        return False
+    p00, p01, p11 = blocks[..., 0], blocks[..., 1], blocks[..., 2]
+    scale = np.abs(flat).max(axis=1)[:, None]
+    return bool(np.all(p00 > 0) and np.all(p00 * p11 - p01 * p01 > 1e-9 * scale * (p00 + p11)))
 
 
 def _infinite_measurement() -> InvalidInputError:
@@ -699,7 +723,8 @@ class KalmanFilter:
                 arr = arr[0]
             else:
                 check_shape("P", arr, (self.n_filters, n, n), "(one covariance per filter) or (n, n) shared")
-        check_covariance("P", arr)
+        if not _clearly_positive_definite_blocks(arr):
+            check_covariance("P", arr)
         return arr
 
     # -- the two internal forms ------------------------------------------------
@@ -976,10 +1001,12 @@ class KalmanFilter:
         if self._fast is not None:
             r = self._decoupled_measurement(H_arr, R_arr)
             if r is not None:
-                self._update_decoupled(z_arr, r)
+                with _kernels.threads_for(self.n_filters):
+                    self._update_decoupled(z_arr, r)
                 return
             self._to_dense()
-        self._update_dense(z_arr, H_arr, R_arr)
+        with _kernels.threads_for(self.n_filters):
+            self._update_dense(z_arr, H_arr, R_arr)
 
     def _update_decoupled(self, z: np.ndarray, r: np.ndarray) -> None:
         """One compiled pass: the recorded predict (if any) and the update, decoupled form."""
