@@ -13,8 +13,12 @@ Layout (structure of arrays, so every operation is elementwise on (N,) rows):
 * ``C`` (B, 3, N) or (B, 3) when all filters share it: B = 1 when the x and y
   blocks are identical, else 2 (x block, y block); rows p00, p01, p11.
 
-Work is done in chunks of tracks so that the temporaries stay in the CPU cache;
-all operations write into preallocated buffers (``out=``).
+The structure tests (:func:`cv_transition_dt`, :func:`axis_blocks`, ...), the
+conversions and :class:`DecoupledUpdate` serve the filter.  :func:`predict` and
+:func:`update` are the NumPy reference of the compiled kernels in
+:mod:`._kernels` (the tests compare the two; the filter runs the kernels): work
+is done in chunks of tracks so that the temporaries stay in the CPU cache, all
+operations writing into preallocated buffers (``out=``).
 """
 
 from __future__ import annotations

@@ -182,3 +182,30 @@ def test_the_kernels_report_a_singular_innovation_covariance():
     kf.R = np.zeros((2, 2))
     with pytest.raises(SingularCovarianceError, match="innovation covariance"):
         kf.update(z)
+
+
+def test_general_form_statistics_equal_kalman_update_with_partial_rows():
+    """y, S, K, NIS and log-likelihood of the compiled general step (computed from the prior on
+    access, masking the missing components) equal the reference kalman_update's, grouped by NaN pattern."""
+    from kalmansfm.estimation.kalman import kalman_predict, kalman_update
+
+    rng = np.random.default_rng(7)
+    N = 60
+    R = np.array([[4.0, 1.0], [1.0, 3.0]])
+    x0 = rng.normal(scale=10, size=(N, 4))
+    kf = KalmanFilter(x0, CV.P0, CV.F, CV.H, COUPLED_Q, R)
+    x, P = x0, np.broadcast_to(CV.P0, (N, 4, 4))
+    for z in _measurements(rng, 4, N, 0.2):
+        z[rng.random((N, 2)) < 0.15] = np.nan
+        kf.predict()
+        kf.update(z)
+        x, P = kalman_predict(x, P, CV.F, COUPLED_Q)
+        ref = kalman_update(x, P, z, CV.H, R)
+        x, P = ref.x, np.broadcast_to(ref.P, (N, 4, 4))
+        np.testing.assert_allclose(kf.x, ref.x, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(np.isnan(kf.y), np.isnan(ref.y))
+        np.testing.assert_allclose(kf.y, ref.y, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(kf.S, np.broadcast_to(ref.S, (N, 2, 2)), rtol=1e-12)
+        np.testing.assert_allclose(kf.K, ref.K, rtol=1e-10, atol=1e-13)
+        np.testing.assert_allclose(kf.nis, ref.nis, rtol=1e-10)
+        np.testing.assert_allclose(kf.log_likelihood, ref.log_likelihood, rtol=1e-10)
