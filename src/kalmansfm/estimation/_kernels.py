@@ -73,7 +73,34 @@ def _update_block(p00, p01, p11, r, s, g, one, two, joseph):
     return a * p00, a * p01, p11 - k1 * p01, k0, k1
 
 
-@njit(parallel=True, **_JIT)
+@njit(inline="always", **_JIT)
+def _prior_state(X, u, dt, i):
+    """x⁻ = F x (+ u) of track i: position += dt · velocity."""
+    x = X[0, i] + dt * X[2, i]
+    y = X[1, i] + dt * X[3, i]
+    vx = X[2, i]
+    vy = X[3, i]
+    if u is not None:
+        x += u[0, i]
+        y += u[1, i]
+        vx += u[2, i]
+        vy += u[3, i]
+    return x, y, vx, vy
+
+
+@njit(inline="always", **_JIT)
+def _axis(C, b, i, dt, q0, q1, q2, r, measured, one, two, zero, joseph):
+    """Prior and posterior of covariance block b of track i, measured or not.
+
+    Returns the posterior (p00, p01, p11), the gains (k0, k1) (0 when not measured: the
+    prior passes through) and whether a measured innovation variance p00⁻ + r is not > 0.
+    """
+    p00, p01, p11 = _predict_block(C[b, 0, i], C[b, 1, i], C[b, 2, i], dt, q0, q1, q2)
+    s = p00 + r
+    o00, o01, o11, k0, k1 = _update_block(p00, p01, p11, r, s, (one if measured else zero) / s, one, two, joseph)
+    return o00, o01, o11, k0, k1, measured & (not s > zero)
+
+
 def cv_step(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
     """Predict (x⁻ = F x + u, P⁻ = F P Fᵀ + Q) and update on z, for every track, in one pass.
 
@@ -94,29 +121,26 @@ def cv_step(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
     histories, and the caller runs the step again with Bo = 2); measured tracks
     whose innovation variance p00⁻ + r is not > 0.  The outputs are only valid
     when all three are 0.
+
+    One block or two are two compiled loops: a branch between them inside the loop
+    would be if-converted by the vectoriser, i.e. both sides computed for every track.
     """
-    N = X.shape[1]
-    one = X.dtype.type(1.0)
-    two = X.dtype.type(2.0)
-    zero = X.dtype.type(0.0)
-    inf = X.dtype.type(np.inf)
-    last_in = C.shape[0] - 1
-    split = Co.shape[0] == 2
+    if Co.shape[0] == 2:
+        return _cv_step_two_blocks(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo)
+    return _cv_step_one_block(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo)
+
+
+@njit(parallel=True, **_JIT)
+def _cv_step_one_block(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
+    """:func:`cv_step` with one block for both axes (C, Co (1, 3, N); q[0] = q[1], r[0] = r[1])."""
+    one, two, zero, inf = X.dtype.type(1.0), X.dtype.type(2.0), X.dtype.type(0.0), X.dtype.type(np.inf)
+    qx0, qx1, qx2 = q[0, 0], q[0, 1], q[0, 2]  # scalars: an array view made inside the loop stops vectorisation
     per_track_r = r.shape[1] > 1
     n_infinite = 0
     n_partial = 0
     n_singular = 0
-    for i in prange(N):
-        # x⁻ = F x (+ u): position += dt · velocity
-        x = X[0, i] + dt * X[2, i]
-        y = X[1, i] + dt * X[3, i]
-        vx = X[2, i]
-        vy = X[3, i]
-        if u is not None:
-            x += u[0, i]
-            y += u[1, i]
-            vx += u[2, i]
-            vy += u[3, i]
+    for i in prange(X.shape[1]):
+        x, y, vx, vy = _prior_state(X, u, dt, i)
         zi = z[i]
         n_infinite += (abs(zi.real) == inf) | (abs(zi.imag) == inf)
         # y = z - H x⁻ (NaN where not measured)
@@ -126,36 +150,61 @@ def cv_step(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
         Yo[1, i] = ey
         mx = ex == ex
         my = ey == ey
-        rx = r[0, i] if per_track_r else r[0, 0]
-        p00, p01, p11 = _predict_block(C[0, 0, i], C[0, 1, i], C[0, 2, i], dt, q[0, 0], q[0, 1], q[0, 2])
-        s = p00 + rx
-        n_singular += mx & (not s > zero)
-        o00, o01, o11, kx0, kx1 = _update_block(p00, p01, p11, rx, s, (one if mx else zero) / s, one, two, joseph)
+        n_partial += mx != my
+        o00, o01, o11, k0, k1, singular = _axis(C, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0],
+                                                mx, one, two, zero, joseph)
+        n_singular += singular
         Co[0, 0, i] = o00
         Co[0, 1, i] = o01
         Co[0, 2, i] = o11
-        if split:
-            ry = r[1, i] if per_track_r else r[1, 0]
-            p00, p01, p11 = _predict_block(C[last_in, 0, i], C[last_in, 1, i], C[last_in, 2, i], dt,
-                                           q[1, 0], q[1, 1], q[1, 2])
-            s = p00 + ry
-            n_singular += my & (not s > zero)
-            o00, o01, o11, ky0, ky1 = _update_block(p00, p01, p11, ry, s, (one if my else zero) / s, one, two, joseph)
-            Co[1, 0, i] = o00
-            Co[1, 1, i] = o01
-            Co[1, 2, i] = o11
-        else:
-            n_partial += mx != my
-            ky0 = kx0
-            ky1 = kx1
         # x = x⁻ + k0 y, v = v⁻ + k1 y, with y = 0 where not measured (its gain is 0 too)
+        ex = ex if mx else zero
+        ey = ey if my else zero
+        Xo[0, i] = x + k0 * ex
+        Xo[1, i] = y + k0 * ey
+        Xo[2, i] = vx + k1 * ex
+        Xo[3, i] = vy + k1 * ey
+    return n_infinite, n_partial, n_singular
+
+
+@njit(parallel=True, **_JIT)
+def _cv_step_two_blocks(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
+    """:func:`cv_step` with an x block and a y block (Co (2, 3, N); C (2, 3, N), or (1, 3, N) as they part)."""
+    one, two, zero, inf = X.dtype.type(1.0), X.dtype.type(2.0), X.dtype.type(0.0), X.dtype.type(np.inf)
+    qx0, qx1, qx2, qy0, qy1, qy2 = q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2]
+    per_track_r = r.shape[1] > 1
+    y_in = C.shape[0] - 1
+    n_infinite = 0
+    n_singular = 0
+    for i in prange(X.shape[1]):
+        x, y, vx, vy = _prior_state(X, u, dt, i)
+        zi = z[i]
+        n_infinite += (abs(zi.real) == inf) | (abs(zi.imag) == inf)
+        ex = zi.real - x
+        ey = zi.imag - y
+        Yo[0, i] = ex
+        Yo[1, i] = ey
+        mx = ex == ex
+        my = ey == ey
+        o00, o01, o11, kx0, kx1, singular = _axis(C, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0],
+                                                  mx, one, two, zero, joseph)
+        n_singular += singular
+        Co[0, 0, i] = o00
+        Co[0, 1, i] = o01
+        Co[0, 2, i] = o11
+        o00, o01, o11, ky0, ky1, singular = _axis(C, y_in, i, dt, qy0, qy1, qy2,
+                                                  r[1, i] if per_track_r else r[1, 0], my, one, two, zero, joseph)
+        n_singular += singular
+        Co[1, 0, i] = o00
+        Co[1, 1, i] = o01
+        Co[1, 2, i] = o11
         ex = ex if mx else zero
         ey = ey if my else zero
         Xo[0, i] = x + kx0 * ex
         Xo[1, i] = y + ky0 * ey
         Xo[2, i] = vx + kx1 * ex
         Xo[3, i] = vy + ky1 * ey
-    return n_infinite, n_partial, n_singular
+    return n_infinite, 0, n_singular
 
 
 @njit(**_JIT)
@@ -199,15 +248,7 @@ def cv_step_shared(X, z, dt, gains, u, Xo, Yo):
     n_infinite = 0
     n_missing = 0
     for i in prange(N):
-        x = X[0, i] + dt * X[2, i]
-        y = X[1, i] + dt * X[3, i]
-        vx = X[2, i]
-        vy = X[3, i]
-        if u is not None:
-            x += u[0, i]
-            y += u[1, i]
-            vx += u[2, i]
-            vy += u[3, i]
+        x, y, vx, vy = _prior_state(X, u, dt, i)
         zi = z[i]
         n_infinite += (abs(zi.real) == inf) | (abs(zi.imag) == inf)
         ex = zi.real - x
@@ -226,15 +267,7 @@ def cv_step_shared(X, z, dt, gains, u, Xo, Yo):
 def cv_predict(X, C, dt, q, u, Xo, Co):
     """The prior alone: Xo = F X (+ u), Co = A C Aᵀ + Q per block; C (B, 3, M) with M = N or 1 (shared)."""
     for i in prange(X.shape[1]):
-        x = X[0, i] + dt * X[2, i]
-        y = X[1, i] + dt * X[3, i]
-        vx = X[2, i]
-        vy = X[3, i]
-        if u is not None:
-            x += u[0, i]
-            y += u[1, i]
-            vx += u[2, i]
-            vy += u[3, i]
+        x, y, vx, vy = _prior_state(X, u, dt, i)
         Xo[0, i] = x
         Xo[1, i] = y
         Xo[2, i] = vx
