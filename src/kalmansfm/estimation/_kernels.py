@@ -186,15 +186,14 @@ def _cv_step_two_blocks(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
         Yo[1, i] = ey
         mx = ex == ex
         my = ey == ey
-        o00, o01, o11, kx0, kx1, singular = _axis(C, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0],
-                                                  mx, one, two, zero, joseph)
-        n_singular += singular
+        o00, o01, o11, kx0, kx1, singular_x = _axis(C, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0],
+                                                    mx, one, two, zero, joseph)
         Co[0, 0, i] = o00
         Co[0, 1, i] = o01
         Co[0, 2, i] = o11
-        o00, o01, o11, ky0, ky1, singular = _axis(C, y_in, i, dt, qy0, qy1, qy2,
-                                                  r[1, i] if per_track_r else r[1, 0], my, one, two, zero, joseph)
-        n_singular += singular
+        o00, o01, o11, ky0, ky1, singular_y = _axis(C, y_in, i, dt, qy0, qy1, qy2,
+                                                    r[1, i] if per_track_r else r[1, 0], my, one, two, zero, joseph)
+        n_singular += singular_x | singular_y  # one update of a reduction variable per iteration (parfor rule)
         Co[1, 0, i] = o00
         Co[1, 1, i] = o01
         Co[1, 2, i] = o11
