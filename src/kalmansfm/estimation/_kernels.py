@@ -106,19 +106,19 @@ def cv_step(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
 
     Parameters
     ----------
-    X (4, N), C (Bi, 3, N) : posterior of the previous step.
+    X (4, N), C (B, 3, N) : posterior of the previous step (B = 2 needs Co with 2 blocks).
     z (N,) complex : measured positions, NaN = missing (a component or both).
     dt : frame interval (of X's dtype); q (2, 3) process noise blocks of x and y.
     r (2, 1) or (2, N) : measurement variances of x and y.
     u : None or (4, N) known offset added to the predicted state.
     joseph : Joseph-form covariance update, else P = (I - K H) P.
-    Xo (4, N), Co (Bo, 3, N), Yo (2, N) : outputs (posterior, innovations).
+    Xo (4, N), Co (B, 3, N), Yo (2, N) : outputs (posterior, innovations).
 
     Returns
     -------
     (n_infinite, n_partial, n_singular) : measurements holding ±inf; rows with one
-    component missing (only counted when Bo = 1: the single block cannot hold two
-    histories, and the caller runs the step again with Bo = 2); measured tracks
+    component missing (only counted when B = 1: the single block cannot hold two
+    histories, and the caller runs the step again with B = 2); measured tracks
     whose innovation variance p00⁻ + r is not > 0.  The outputs are only valid
     when all three are 0.
 
@@ -169,11 +169,10 @@ def _cv_step_one_block(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
 
 @njit(parallel=True, **_JIT)
 def _cv_step_two_blocks(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
-    """:func:`cv_step` with an x block and a y block (Co (2, 3, N); C (2, 3, N), or (1, 3, N) as they part)."""
+    """:func:`cv_step` with an x block and a y block (C, Co (2, 3, N))."""
     one, two, zero, inf = X.dtype.type(1.0), X.dtype.type(2.0), X.dtype.type(0.0), X.dtype.type(np.inf)
     qx0, qx1, qx2, qy0, qy1, qy2 = q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2]
     per_track_r = r.shape[1] > 1
-    y_in = C.shape[0] - 1
     n_infinite = 0
     n_singular = 0
     for i in prange(X.shape[1]):
@@ -191,7 +190,7 @@ def _cv_step_two_blocks(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
         Co[0, 0, i] = o00
         Co[0, 1, i] = o01
         Co[0, 2, i] = o11
-        o00, o01, o11, ky0, ky1, singular_y = _axis(C, y_in, i, dt, qy0, qy1, qy2,
+        o00, o01, o11, ky0, ky1, singular_y = _axis(C, 1, i, dt, qy0, qy1, qy2,
                                                     r[1, i] if per_track_r else r[1, 0], my, one, two, zero, joseph)
         n_singular += singular_x | singular_y  # one update of a reduction variable per iteration (parfor rule)
         Co[1, 0, i] = o00

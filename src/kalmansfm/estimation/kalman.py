@@ -1037,7 +1037,7 @@ class KalmanFilter:
         n_infinite, n_partial, n_singular = _kernels.cv_step(X, C, zc, dt, q, r2, u, self.joseph, Xo, Co, Yo)
         if n_partial and not n_infinite:
             # a row measured x or y alone: the two axes' histories part, two blocks from now on
-            Co = take((2, 3, N), dtype)
+            C, Co = np.concatenate([C, C]), take((2, 3, N), dtype)
             n_infinite, n_partial, n_singular = _kernels.cv_step(X, C, zc, dt, q, r2, u, self.joseph, Xo, Co, Yo)
         if n_infinite:
             raise _infinite_measurement()
