@@ -89,16 +89,39 @@ def _prior_state(X, u, dt, i):
 
 
 @njit(inline="always", **_JIT)
-def _axis(C, b, i, dt, q0, q1, q2, r, measured, one, two, zero, joseph):
-    """Prior and posterior of covariance block b of track i, measured or not.
+def _innovation(z, i, x, y, Yo, inf):
+    """y = z - H x⁻ of track i, written to Yo (NaN where not measured); returns it, the measured flags and ±inf."""
+    zi = z[i]
+    ex = zi.real - x
+    ey = zi.imag - y
+    Yo[0, i] = ex
+    Yo[1, i] = ey
+    return ex, ey, ex == ex, ey == ey, (abs(zi.real) == inf) | (abs(zi.imag) == inf)
 
-    Returns the posterior (p00, p01, p11), the gains (k0, k1) (0 when not measured: the
-    prior passes through) and whether a measured innovation variance p00⁻ + r is not > 0.
+
+@njit(inline="always", **_JIT)
+def _axis(C, Co, b, i, dt, q0, q1, q2, r, measured, one, two, zero, joseph):
+    """Covariance block b of track i: prior, then posterior written to Co (the prior where not measured).
+
+    Returns the gains (k0, k1) (0 when not measured) and whether a measured innovation
+    variance p00⁻ + r is not > 0.
     """
     p00, p01, p11 = _predict_block(C[b, 0, i], C[b, 1, i], C[b, 2, i], dt, q0, q1, q2)
     s = p00 + r
-    o00, o01, o11, k0, k1 = _update_block(p00, p01, p11, r, s, (one if measured else zero) / s, one, two, joseph)
-    return o00, o01, o11, k0, k1, measured & (not s > zero)
+    Co[b, 0, i], Co[b, 1, i], Co[b, 2, i], k0, k1 = _update_block(p00, p01, p11, r, s, (one if measured else zero) / s,
+                                                                  one, two, joseph)
+    return k0, k1, measured & (not s > zero)
+
+
+@njit(inline="always", **_JIT)
+def _posterior_state(Xo, i, x, y, vx, vy, kx0, kx1, ky0, ky1, ex, ey, mx, my, zero):
+    """x = x⁻ + k0 y, v = v⁻ + k1 y per axis, with y = 0 where not measured (its gain is 0 too)."""
+    ex = ex if mx else zero
+    ey = ey if my else zero
+    Xo[0, i] = x + kx0 * ex
+    Xo[1, i] = y + ky0 * ey
+    Xo[2, i] = vx + kx1 * ex
+    Xo[3, i] = vy + ky1 * ey
 
 
 def cv_step(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
@@ -141,29 +164,13 @@ def _cv_step_one_block(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
     n_singular = 0
     for i in prange(X.shape[1]):
         x, y, vx, vy = _prior_state(X, u, dt, i)
-        zi = z[i]
-        n_infinite += (abs(zi.real) == inf) | (abs(zi.imag) == inf)
-        # y = z - H x⁻ (NaN where not measured)
-        ex = zi.real - x
-        ey = zi.imag - y
-        Yo[0, i] = ex
-        Yo[1, i] = ey
-        mx = ex == ex
-        my = ey == ey
+        ex, ey, mx, my, infinite = _innovation(z, i, x, y, Yo, inf)
+        n_infinite += infinite
         n_partial += mx != my
-        o00, o01, o11, k0, k1, singular = _axis(C, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0],
-                                                mx, one, two, zero, joseph)
+        k0, k1, singular = _axis(C, Co, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0], mx,
+                                 one, two, zero, joseph)
         n_singular += singular
-        Co[0, 0, i] = o00
-        Co[0, 1, i] = o01
-        Co[0, 2, i] = o11
-        # x = x⁻ + k0 y, v = v⁻ + k1 y, with y = 0 where not measured (its gain is 0 too)
-        ex = ex if mx else zero
-        ey = ey if my else zero
-        Xo[0, i] = x + k0 * ex
-        Xo[1, i] = y + k0 * ey
-        Xo[2, i] = vx + k1 * ex
-        Xo[3, i] = vy + k1 * ey
+        _posterior_state(Xo, i, x, y, vx, vy, k0, k1, k0, k1, ex, ey, mx, my, zero)
     return n_infinite, n_partial, n_singular
 
 
@@ -177,31 +184,14 @@ def _cv_step_two_blocks(X, C, z, dt, q, r, u, joseph, Xo, Co, Yo):
     n_singular = 0
     for i in prange(X.shape[1]):
         x, y, vx, vy = _prior_state(X, u, dt, i)
-        zi = z[i]
-        n_infinite += (abs(zi.real) == inf) | (abs(zi.imag) == inf)
-        ex = zi.real - x
-        ey = zi.imag - y
-        Yo[0, i] = ex
-        Yo[1, i] = ey
-        mx = ex == ex
-        my = ey == ey
-        o00, o01, o11, kx0, kx1, singular_x = _axis(C, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0],
-                                                    mx, one, two, zero, joseph)
-        Co[0, 0, i] = o00
-        Co[0, 1, i] = o01
-        Co[0, 2, i] = o11
-        o00, o01, o11, ky0, ky1, singular_y = _axis(C, 1, i, dt, qy0, qy1, qy2,
-                                                    r[1, i] if per_track_r else r[1, 0], my, one, two, zero, joseph)
+        ex, ey, mx, my, infinite = _innovation(z, i, x, y, Yo, inf)
+        n_infinite += infinite
+        kx0, kx1, singular_x = _axis(C, Co, 0, i, dt, qx0, qx1, qx2, r[0, i] if per_track_r else r[0, 0], mx,
+                                     one, two, zero, joseph)
+        ky0, ky1, singular_y = _axis(C, Co, 1, i, dt, qy0, qy1, qy2, r[1, i] if per_track_r else r[1, 0], my,
+                                     one, two, zero, joseph)
         n_singular += singular_x | singular_y  # one update of a reduction variable per iteration (parfor rule)
-        Co[1, 0, i] = o00
-        Co[1, 1, i] = o01
-        Co[1, 2, i] = o11
-        ex = ex if mx else zero
-        ey = ey if my else zero
-        Xo[0, i] = x + kx0 * ex
-        Xo[1, i] = y + ky0 * ey
-        Xo[2, i] = vx + kx1 * ex
-        Xo[3, i] = vy + ky1 * ey
+        _posterior_state(Xo, i, x, y, vx, vy, kx0, kx1, ky0, ky1, ex, ey, mx, my, zero)
     return n_infinite, 0, n_singular
 
 
@@ -319,27 +309,16 @@ def _load_covariance(P, s0, k, out):
 
 
 @njit(**_JIT)
-def _product(A, B, out, k, zero):
-    """out[a, b] = Σ_c A[a, c] B[c, b] for every track j < k."""
+def _product(A, B, out, k, zero, transposed=False):
+    """out[a, b] = Σ_c A[a, c] B[c, b] (A B), or Σ_c A[a, c] B[b, c] (A Bᵀ) when ``transposed``, for tracks j < k."""
     for a in range(out.shape[0]):
         for b in range(out.shape[1]):
             for j in range(k):
                 out[a, b, j] = zero
             for c in range(A.shape[1]):
+                Bc = B[b, c] if transposed else B[c, b]
                 for j in range(k):
-                    out[a, b, j] += A[a, c, j] * B[c, b, j]
-
-
-@njit(**_JIT)
-def _product_transposed(A, B, out, k, zero):
-    """out[a, b] = Σ_c A[a, c] B[b, c] (A Bᵀ) for every track j < k."""
-    for a in range(out.shape[0]):
-        for b in range(out.shape[1]):
-            for j in range(k):
-                out[a, b, j] = zero
-            for c in range(A.shape[1]):
-                for j in range(k):
-                    out[a, b, j] += A[a, c, j] * B[b, c, j]
+                    out[a, b, j] += A[a, c, j] * Bc[j]
 
 
 @njit(**_JIT)
@@ -360,7 +339,7 @@ def _prior_chunk(x, P, F, Q, u, s0, k, xp, Pp, Fc, W):
                 xp[a, j] += u[a, s0 + j]
     # Pp = (F P) Fᵀ + Q
     _product(Fc, W, Pp, k, zero)
-    _product_transposed(Pp, Fc, W, k, zero)
+    _product(Pp, Fc, W, k, zero, True)
     _load_model(Q, s0, k, Pp)
     for a in range(n):
         for b in range(a, n):
@@ -444,7 +423,7 @@ def _step_range(x, P, z, F, Q, H, R, u, predict, joseph, xo, Po, yo, start, stop
                 e[r, j] = e[r, j] if measured else zero
         # P Hᵀ (n, m); S = H P Hᵀ + R (lower triangle) with the unmeasured rows and columns
         # replaced by the identity's; then the unmeasured columns of P Hᵀ set to 0
-        _product_transposed(Pp, Hc, PHt, k, zero)
+        _product(Pp, Hc, PHt, k, zero, True)
         for r in range(m):
             for t in range(r + 1):
                 for j in range(k):
@@ -508,7 +487,7 @@ def _step_range(x, P, z, F, Q, H, R, u, predict, joseph, xo, Po, yo, start, stop
         if joseph:
             # Joseph form: P = (I - KH) P (I - KH)ᵀ + K R Kᵀ, symmetric PSD even when K is not optimal
             # (K R goes into PHt and the result into Pp, neither needed any more).
-            _product_transposed(W, A, Pp, k, zero)
+            _product(W, A, Pp, k, zero, True)
             _product(K, Rc, PHt, k, zero)
             for a in range(n):
                 for b in range(a, n):
