@@ -28,7 +28,7 @@ Printed, each with the load average:
 
 Run:
 
-    python benchmarks/bench_kalman.py                  # the whole set, ~10 min on 2 cores
+    python benchmarks/bench_kalman.py                  # the whole set, ~12 min on 2 cores
     python benchmarks/bench_kalman.py --quick          # 10⁵ tracks, no sweep, no first-call or memory pass
     python benchmarks/bench_kalman.py --tracker
 
@@ -182,6 +182,22 @@ def run_numpy_reference(x0, zs, model):
             result = kalman_update(x, P, z, model.H, model.R)
             x, P = result.x, np.broadcast_to(result.P, P.shape)
     return c.seconds, x, P
+
+
+def run_decoupled_reference(x0, zs, model):
+    """The NumPy decoupled constant-velocity path (chunked elementwise passes), which the filter ran
+    before the compiled kernels and which the tests now compare the kernels with."""
+    from kalmansfm.estimation import _decoupled
+
+    q = _decoupled.axis_blocks(model.Q)[:1]
+    r = _decoupled.diagonal_noise(model.R)
+    X = np.ascontiguousarray(x0.T)
+    C = np.ascontiguousarray(np.broadcast_to(_decoupled.axis_blocks(model.P0)[:1, :, None], (1, 3, x0.shape[0])))
+    with Clock() as c:
+        for z in zs:
+            X, C = _decoupled.predict(X, C, 1.0, q, None)
+            X, C, _ = _decoupled.update(X, C, z, r, True, np.isnan(z))
+    return c.seconds, X.T
 
 
 def coupled_model(seed: int = 1):
@@ -381,14 +397,17 @@ def main() -> None:
     n_sk = min(args.simdkalman_tracks, N)
     seconds, sk_x, _ = run_simdkalman(x0[:n_sk], zs[:, :n_sk], cv)
     add("simdkalman (filtered=True), CV model (computes in float64)", n_sk, seconds)
+    seconds, dec_x = run_decoupled_reference(x0, zs, cv)
+    add("NumPy decoupled path (the filter's arithmetic before the kernels)", N, seconds)
     seconds, ref_x, ref_P = run_numpy_reference(x0, zs, cv)
     add("kalmansfm NumPy reference functions, (N, 4, 4) covariances", N, seconds)
     agreement = {
+        "NumPy decoupled path": (relative_difference(kf.x, dec_x), float("nan")),
         "dense NumPy reference": (relative_difference(kf.x, ref_x), relative_difference(np.array(kf.P), ref_P)),
         "FilterPy": (relative_difference(kf.x[:n_fp], fp_x), relative_difference(np.array(kf.P[:n_fp]), fp_P)),
         "simdkalman": (relative_difference(kf.x[:n_sk], sk_x), float("nan")),
     }
-    del ref_x, ref_P
+    del ref_x, ref_P, dec_x
 
     dm = coupled_model()
     n_d = min(args.dense_tracks, N)
