@@ -43,6 +43,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..estimation._checks import as_float_array, check_count
+from ._measurement import streamed_rank
 from .lowrank import truncated_svd
 
 __all__ = ["Reconstruction", "factorize", "metric_upgrade"]
@@ -173,11 +174,126 @@ def factorize(
     max_iterations = check_count("max_iterations", max_iterations, 1)
     if not (np.isfinite(tol) and tol >= 0):
         raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
+    notes: list[str] = []
+    fit = _streamed_closed_form(positions, weights, rng)
+    if fit is None:
+        fit = _general_fit(positions, weights, max_iterations, tol, rng, notes)
+    f_ok, p_ok, motion_aff, shape_aff = fit.f_ok, fit.p_ok, fit.motion, fit.shape
+    _check_rank(fit.singular_values, motion_aff[f_ok], shape_aff[p_ok], notes)
+
+    rows = motion_aff[f_ok].reshape(-1, 3)
+    a_matrix, q = metric_upgrade(rows, notes)
+    motion = motion_aff @ q  # R = R* Q
+    shape = np.linalg.solve(q, shape_aff.T).T  # S = Q⁻¹ S*
+
+    # Gauge: the orthonormal 2 × 3 nearest to frame 0's rows becomes [I 0].
+    first = int(np.flatnonzero(f_ok)[0])
+    u, _, vt = np.linalg.svd(motion[first], full_matrices=False)
+    axes = u @ vt
+    basis = np.vstack([axes, np.cross(axes[0], axes[1])])  # rows: camera x, y, z of frame 0
+    motion = motion @ basis.T
+    shape = shape @ basis.T
+    # Centre the shape; the shift goes into the translation: x = M (S − c) + (t + M c).
+    centroid = shape[p_ok].mean(axis=0)
+    shape = shape - centroid
+    translation = fit.translation + motion @ centroid
+    _check_shape(shape[p_ok], notes)
+
+    frames, points = fit.positions.shape[:2]
+    full_motion = np.full((frames, 2, 3), np.nan)
+    full_translation = np.full((frames, 2), np.nan)
+    full_points = np.full((points, 3), np.nan)
+    f_index, p_index = np.flatnonzero(fit.use_f)[f_ok], np.flatnonzero(fit.use_p)[p_ok]
+    full_motion[f_index] = motion[f_ok]
+    full_translation[f_index] = translation[f_ok]
+    full_points[p_index] = shape[p_ok]
+
+    if fit.residuals is None:
+        residuals, used, residual_rms = _reprojection_residuals(
+            fit.positions, fit.observed, full_motion, full_points, full_translation
+        )
+        residuals = residuals.astype(fit.residual_dtype, copy=False)
+    else:
+        # Complete data: the reprojection M S + t is the rank-3 part of W plus the centroids
+        # (the upgrade and the gauge only re-parametrise it), so the distances measured in
+        # the SVD's last pass are the reprojection residuals.
+        residuals, used = fit.residuals, np.ones((frames, points), bool)
+        residual_rms = float(np.sqrt(fit.residual_sum / residuals.size))
+    method, iterations, sv = fit.method, fit.iterations, fit.singular_values
+    return Reconstruction(
+        points=full_points,
+        motion=full_motion,
+        translation=full_translation,
+        singular_values=sv,
+        residual_rms=residual_rms,
+        residuals=residuals,
+        observed=used,
+        warnings=tuple(notes),
+        method=method,
+        iterations=iterations,
+        metric_matrix=a_matrix,
+    )
+
+
+@dataclass(frozen=True)
+class _AffineFit:
+    """Affine factors R* (``motion``), S* (``shape``) and ``translation`` on the usable frames
+    (``use_f``) × points (``use_p``) of ``positions``, of which ``f_ok`` / ``p_ok`` were reached.
+    ``residuals`` / ``residual_sum`` are set when the fit already measured them (complete data)."""
+
+    positions: np.ndarray
+    observed: np.ndarray | None
+    use_f: np.ndarray
+    use_p: np.ndarray
+    f_ok: np.ndarray
+    p_ok: np.ndarray
+    motion: np.ndarray
+    shape: np.ndarray
+    translation: np.ndarray
+    singular_values: np.ndarray
+    method: str
+    iterations: int
+    residual_dtype: type
+    residuals: np.ndarray | None = None
+    residual_sum: float = 0.0
+
+
+def _streamed_closed_form(positions: object, weights: object, rng: object) -> _AffineFit | None:
+    """The closed form straight from a large complete (F, P, 2) array, or None (general path).
+
+    W is never built: :func:`~kalmansfm.structure._measurement.streamed_rank` reads
+    ``positions`` three times (a float32 array stays float32 in memory; the sums are
+    float64). Returns None for small input, weights, or as soon as a NaN or an infinity
+    is met.
+    """
+    if weights is not None or not isinstance(positions, np.ndarray) or positions.ndim != 3:
+        return None
+    frames, points, coordinates = positions.shape
+    if coordinates != 2 or frames < 3 or points < 4 or 2 * frames * points <= _LAPACK_LIMIT:
+        return None
+    dtype = positions.dtype if positions.dtype in (np.float32, np.float64) else np.float64
+    x = np.ascontiguousarray(positions, dtype=dtype)  # no copy for a C-ordered float32/float64 array
+    fit = streamed_rank(x, 3, tol=1e-9, max_passes=21, rng=np.random.default_rng(rng))
+    if fit is None:
+        return None
+    root = np.sqrt(fit.s)
+    every_f, every_p = np.ones(frames, bool), np.ones(points, bool)
+    return _AffineFit(
+        positions=x, observed=None, use_f=every_f, use_p=every_p, f_ok=every_f, p_ok=every_p,
+        motion=(fit.u * root).reshape(frames, 2, 3), shape=fit.vt.T * root, translation=fit.centroids,
+        singular_values=np.concatenate([fit.s, fit.extra_singular_values]), method="svd", iterations=0,
+        residual_dtype=dtype, residuals=fit.residuals, residual_sum=fit.residual_sum,
+    )
+
+
+def _general_fit(
+    positions: object, weights: object, max_iterations: int, tol: float, rng: object, notes: list[str]
+) -> _AffineFit:
+    """Validation, usable frames and points, then the closed form or weighted ALS."""
+    residual_dtype = np.float32 if np.asarray(positions).dtype == np.float32 else np.float64
     x, w, observed = _validate(positions, weights)
-    frames, points = x.shape[:2]
     if w is not None:
         observed &= (w > 0).any(axis=2)
-    notes: list[str] = []
     use_f, use_p = _usable(observed, notes)
     everything = bool(use_f.all() and use_p.all())
 
@@ -207,47 +323,10 @@ def factorize(
                 f"factorize needs >= 3 frames and >= 4 points linked by observations; "
                 f"reached {int(f_ok.sum())} frames and {int(p_ok.sum())} points"
             )
-    _check_rank(sv, motion_aff[f_ok], shape_aff[p_ok], notes)
-
-    rows = motion_aff[f_ok].reshape(-1, 3)
-    a_matrix, q = metric_upgrade(rows, notes)
-    motion = motion_aff @ q  # R = R* Q
-    shape = np.linalg.solve(q, shape_aff.T).T  # S = Q⁻¹ S*
-
-    # Gauge: the orthonormal 2 × 3 nearest to frame 0's rows becomes [I 0].
-    first = int(np.flatnonzero(f_ok)[0])
-    u, _, vt = np.linalg.svd(motion[first], full_matrices=False)
-    axes = u @ vt
-    basis = np.vstack([axes, np.cross(axes[0], axes[1])])  # rows: camera x, y, z of frame 0
-    motion = motion @ basis.T
-    shape = shape @ basis.T
-    # Centre the shape; the shift goes into the translation: x = M (S − c) + (t + M c).
-    centroid = shape[p_ok].mean(axis=0)
-    shape = shape - centroid
-    translation = translation + motion @ centroid
-    _check_shape(shape[p_ok], notes)
-
-    full_motion = np.full((frames, 2, 3), np.nan)
-    full_translation = np.full((frames, 2), np.nan)
-    full_points = np.full((points, 3), np.nan)
-    f_index, p_index = np.flatnonzero(use_f)[f_ok], np.flatnonzero(use_p)[p_ok]
-    full_motion[f_index] = motion[f_ok]
-    full_translation[f_index] = translation[f_ok]
-    full_points[p_index] = shape[p_ok]
-
-    residuals, used, residual_rms = _reprojection_residuals(x, observed, full_motion, full_points, full_translation)
-    return Reconstruction(
-        points=full_points,
-        motion=full_motion,
-        translation=full_translation,
-        singular_values=sv,
-        residual_rms=residual_rms,
-        residuals=residuals,
-        observed=used,
-        warnings=tuple(notes),
-        method=method,
-        iterations=iterations,
-        metric_matrix=a_matrix,
+    return _AffineFit(
+        positions=x, observed=observed, use_f=use_f, use_p=use_p, f_ok=f_ok, p_ok=p_ok, motion=motion_aff,
+        shape=shape_aff, translation=translation, singular_values=sv, method=method, iterations=iterations,
+        residual_dtype=residual_dtype,
     )
 
 
