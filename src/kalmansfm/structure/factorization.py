@@ -308,9 +308,8 @@ def _general_fit(
         method, iterations = "svd", 0
         f_ok, p_ok = np.ones(int(use_f.sum()), bool), np.ones(int(use_p.sum()), bool)
     else:
-        ws = np.ones_like(xs) if w is None else subset(w)
         motion_aff, shape_aff, translation, iterations, f_ok, p_ok = _weighted_als(
-            xs, ws, obs, max_iterations, tol, notes
+            xs, None if w is None else subset(w), obs, max_iterations, tol, notes
         )
         method = "als"
         sv = _completed_singular_values(xs, obs, motion_aff, shape_aff, translation, f_ok, p_ok, rng)
@@ -495,23 +494,41 @@ def _centred_measurement_matrix(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _weighted_als(
-    x: np.ndarray, w: np.ndarray, observed: np.ndarray, max_iterations: int, tol: float, notes: list[str]
+    x: np.ndarray, w: np.ndarray | None, observed: np.ndarray, max_iterations: int, tol: float, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
-    frames, points = observed.shape
-    # Work in the (2F, P) layout of W: row 2f is x of frame f, row 2f+1 its y.
-    values = np.where(observed[:, :, None], x, 0.0).transpose(0, 2, 1).reshape(2 * frames, points)
-    weight = np.where(observed[:, :, None], w, 0.0).transpose(0, 2, 1).reshape(2 * frames, points)
-    weighted_values = weight * values
+    """Weighted ALS over the observed entries (``w`` None: unit weights).
 
-    motion, shape, translation, f_ok, p_ok = _initialise(values, observed)
+    Works in the (2F, P) layout of W (row 2f is x of frame f, row 2f+1 its y) with two
+    full-size arrays (three with weights): the observed values (0 where unobserved) and the
+    weights; everything else is computed a block of rows at a time or as a thin product.
+    """
+    frames, points = observed.shape
+    values = _rows_where(x, observed)
+    unit = _rows_where(None, observed)  # 1 where observed: the initialisation's weights
+    motion, shape, translation, f_ok, p_ok = _initialise(values, unit, observed)
+    if w is None:
+        weight, weighted_values = unit, values  # 1 · v = v exactly, and v = 0 where w = 0
+    else:
+        weight = _rows_where(w, observed)
+        weighted_values = weight * values
+    # Frames and points the initialisation did not reach take no part (in place).
     known_rows = np.repeat(f_ok, 2)
-    weight = weight * known_rows[:, None] * p_ok[None, :]
-    weighted_values = weighted_values * known_rows[:, None] * p_ok[None, :]
-    total = float(np.sum(weighted_values * values))
+    for array in (weight, weighted_values):
+        array[~known_rows] = 0.0
+        array[:, ~p_ok] = 0.0
+    total = float(np.einsum("ij,ij->", weighted_values, values))
+    blocks = _frame_blocks(2 * frames, points)
 
     def cost(motion: np.ndarray, shape: np.ndarray, translation: np.ndarray) -> float:
-        prediction = motion @ shape.T + translation[:, None]
-        return float(np.sum(weight * (values - prediction) ** 2))
+        # Σ w (v − m·s − t)², a block of rows at a time
+        result = 0.0
+        for rows in blocks:
+            difference = motion[rows] @ shape.T
+            difference += translation[rows, None]
+            difference -= values[rows]
+            np.square(difference, out=difference)
+            result += float(np.einsum("ij,ij->", weight[rows], difference))
+        return result
 
     previous = cost(motion, shape, translation)
     iterations = 0
@@ -528,6 +545,22 @@ def _weighted_als(
     return motion.reshape(frames, 2, 3), shape, translation.reshape(frames, 2), iterations, f_ok, p_ok
 
 
+def _rows_where(a: np.ndarray | None, observed: np.ndarray) -> np.ndarray:
+    """(2F, P) float64: a[f, p, c] at row 2f + c (1 when ``a`` is None) where observed, else 0.
+
+    Built a block of frames at a time, so the only full-size array is the result.
+    """
+    frames, points = observed.shape
+    out = np.zeros((frames, 2, points))
+    for block in _frame_blocks(frames, points):
+        seen = observed[block][:, None, :]
+        if a is None:
+            np.copyto(out[block], seen)
+        else:
+            np.copyto(out[block], a[block].transpose(0, 2, 1), where=seen)
+    return out.reshape(2 * frames, points)
+
+
 def _solve_points(weight: np.ndarray, weighted_values: np.ndarray, motion: np.ndarray, translation: np.ndarray,
                   fallback: np.ndarray) -> np.ndarray:
     """Each S_p = argmin Σ_rows w (x − m·S_p − t)²: a batched 3 × 3 system per point."""
@@ -538,9 +571,14 @@ def _solve_points(weight: np.ndarray, weighted_values: np.ndarray, motion: np.nd
 
 
 def _solve_frames(weight: np.ndarray, weighted_values: np.ndarray, shape: np.ndarray, motion: np.ndarray,
-                  translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each image row [m | t] = argmin Σ_p w (x − m·S_p − t)²: a batched 4 × 4 system per row."""
+                  translation: np.ndarray, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each image row [m | t] = argmin Σ_p w (x − m·S_p − t)²: a batched 4 × 4 system per row.
+
+    ``columns`` (P,) bool, optional: only these points count (the others' [S_p 1] rows are zeroed).
+    """
     homogeneous = np.hstack([shape, np.ones((shape.shape[0], 1))])
+    if columns is not None:
+        homogeneous[~columns] = 0.0
     outer = (homogeneous[:, :, None] * homogeneous[:, None, :]).reshape(-1, 16)
     normal = (weight @ outer).reshape(-1, 4, 4)
     rhs = weighted_values @ homogeneous
@@ -561,7 +599,7 @@ def _batched_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) ->
     return out
 
 
-def _initialise(values: np.ndarray, observed: np.ndarray):
+def _initialise(values: np.ndarray, unit: np.ndarray, observed: np.ndarray):
     """Affine factors from the largest complete block, extended to all reachable frames and points."""
     frames, points = observed.shape
     rows, cols = _complete_block(observed)
@@ -589,24 +627,22 @@ def _initialise(values: np.ndarray, observed: np.ndarray):
         u, s, vt = np.linalg.svd(filled, full_matrices=False)
         root = np.sqrt(s[:3])
         return u[:, :3] * root, vt[:3].T * root, centroid, observed.sum(axis=1) >= 4, observed.sum(axis=0) >= 2
-    weight = np.repeat(observed, 2, axis=0).astype(np.float64)
-    weighted_values = weight * values
+    # Unit weights; values are 0 where unobserved, so they are also the weighted values.
+    # Frames (points) not yet known have zero motion (shape) rows and so add nothing to a
+    # point's (frame's) normal equations; each solve covers all points (rows) and only the
+    # new ones are kept, so no masked copy of the full-size arrays is made.
     while True:
         seen_by_known = (observed & f_ok[:, None]).sum(axis=0)
         new_p = ~p_ok & (seen_by_known >= 2)
         if new_p.any():
-            w_known = weight * np.repeat(f_ok, 2)[:, None]
-            solved = _solve_points(w_known[:, new_p], weighted_values[:, new_p] * np.repeat(f_ok, 2)[:, None],
-                                   motion, translation, shape[new_p])
-            shape[new_p] = solved
+            shape[new_p] = _solve_points(unit, values, motion, translation, shape)[new_p]
             p_ok |= new_p
         seen_known = (observed & p_ok[None, :]).sum(axis=1)
         new_f = ~f_ok & (seen_known >= 4)
         if new_f.any():
             rows_new = np.repeat(new_f, 2)
-            m, t = _solve_frames(weight[rows_new] * p_ok, weighted_values[rows_new] * p_ok, shape,
-                                 motion[rows_new], translation[rows_new])
-            motion[rows_new], translation[rows_new] = m, t
+            m, t = _solve_frames(unit, values, shape, motion, translation, columns=p_ok)
+            motion[rows_new], translation[rows_new] = m[rows_new], t[rows_new]
             f_ok |= new_f
         if not new_p.any() and not new_f.any():
             break
