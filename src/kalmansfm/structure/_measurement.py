@@ -241,9 +241,10 @@ def _load_row(x, centre, f, p0, n, bx, by):  # pragma: no cover - compiled
     """bx, by = x and y of points p0 … p0+n of frame f minus ``centre[f]`` (de-interleaved)."""
     cx = centre[f, 0]
     cy = centre[f, 1]
+    segment = x[f, p0 : p0 + n]  # indexed from 0 below: a plain stride-2 load that LLVM vectorizes
     for q in range(n):
-        bx[q] = x[f, p0 + q, 0] - cx
-        by[q] = x[f, p0 + q, 1] - cy
+        bx[q] = segment[q, 0] - cx
+        by[q] = segment[q, 1] - cy
 
 
 @numba.njit(**_JIT, inline="always")
@@ -252,8 +253,7 @@ def _load_block(x, centroids, u, p0, n, block, z):  # pragma: no cover - compile
     z[:, p0:p0+n] = Uᵀ W_c for those columns, while each row is in L1."""
     frames = x.shape[0]
     width = u.shape[2]
-    zb = z[:, p0 : p0 + n]
-    zb[:, :] = 0.0
+    z[:, p0 : p0 + n] = 0.0
     for f in range(frames):
         bx = block[f, 0]
         by = block[f, 1]
@@ -261,7 +261,7 @@ def _load_block(x, centroids, u, p0, n, block, z):  # pragma: no cover - compile
         for j in range(width):
             a0 = u[f, 0, j]
             a1 = u[f, 1, j]
-            zj = zb[j]
+            zj = z[j, p0 : p0 + n]  # (a row slice stays C-contiguous for numba; z[:, a:b][j] would not)
             for q in range(n):
                 zj[q] += a0 * bx[q] + a1 * by[q]
 
