@@ -219,15 +219,7 @@ def _first_pass(x, shift, start):  # pragma: no cover - compiled; see _first_pas
             sums[f, 1] += a1
             squares[f, 0] += b0
             squares[f, 1] += b1
-            for j in range(width):
-                zj = start[j, p0 : p0 + n]
-                s0 = 0.0
-                s1 = 0.0
-                for q in range(n):
-                    s0 += bx[q] * zj[q]
-                    s1 += by[q] * zj[q]
-                y[f, 0, j] += s0
-                y[f, 1, j] += s1
+            _add_products(bx, by, start, p0, n, y, f)
     return sums, squares, y
 
 
@@ -245,6 +237,20 @@ def _load_row(x, centre, f, p0, n, bx, by):  # pragma: no cover - compiled
     for q in range(n):
         bx[q] = segment[q, 0] - cx
         by[q] = segment[q, 1] - cy
+
+
+@numba.njit(**_JIT, inline="always")
+def _add_products(bx, by, z, p0, n, y, f):  # pragma: no cover - compiled
+    """y[f, 0, j] += Σ_q bx[q] z[j, p0 + q] and y[f, 1, j] += Σ_q by[q] z[j, p0 + q], every j."""
+    for j in range(z.shape[0]):
+        zj = z[j, p0 : p0 + n]
+        s0 = 0.0
+        s1 = 0.0
+        for q in range(n):
+            s0 += bx[q] * zj[q]
+            s1 += by[q] * zj[q]
+        y[f, 0, j] += s0
+        y[f, 1, j] += s1
 
 
 @numba.njit(**_JIT, inline="always")
@@ -278,17 +284,7 @@ def _round_trip(x, centroids, u, block_points):  # pragma: no cover - compiled; 
         n = min(block_points, points - p0)
         _load_block(x, centroids, u, p0, n, block, z)
         for f in range(frames):
-            bx = block[f, 0]
-            by = block[f, 1]
-            for j in range(width):
-                zj = z[j, p0 : p0 + n]
-                s0 = 0.0
-                s1 = 0.0
-                for q in range(n):
-                    s0 += bx[q] * zj[q]
-                    s1 += by[q] * zj[q]
-                y[f, 0, j] += s0
-                y[f, 1, j] += s1
+            _add_products(block[f, 0], block[f, 1], z, p0, n, y, f)
     return z, y
 
 
@@ -321,15 +317,7 @@ def _projection_pass(x, centroids, u, block_points, residuals):  # pragma: no co
                 for q in range(n):
                     rx[q] -= a0 * zj[q]
                     rw[q] -= a1 * zj[q]
-            for j in range(width):
-                zj = z[j, p0 : p0 + n]
-                s0 = 0.0
-                s1 = 0.0
-                for q in range(n):
-                    s0 += rx[q] * zj[q]
-                    s1 += rw[q] * zj[q]
-                ry[f, 0, j] += s0
-                ry[f, 1, j] += s1
+            _add_products(rx, rw, z, p0, n, ry, f)
             out = residuals[f, p0 : p0 + n]
             acc = 0.0
             for q in range(n):

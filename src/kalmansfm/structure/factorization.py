@@ -9,8 +9,10 @@ rank 3.
 Complete data, no weights (the report's algorithm):
 
 1. centre each frame: W = x − t with t_f the mean of frame f's points;
-2. rank-3 truncation W ≈ U′ D′ V′ᵀ (LAPACK, or the randomized solver of
-   :mod:`~kalmansfm.structure.lowrank` with a certified exact subspace for large W);
+2. rank-3 truncation W ≈ U′ D′ V′ᵀ (LAPACK for small W; for large W the
+   certified subspace iteration of :mod:`~kalmansfm.structure._measurement`, which
+   reads the (F, P, 2) array itself — W is never built, the centring happens inside
+   its passes and its last pass also measures the residuals);
 3. affine factors R* = U′ D′^½ and S* = D′^½ V′ᵀ;
 4. metric upgrade: the symmetric A = Q Qᵀ (6 unknowns) from the linear
    least-squares system i*ᵀ A i* = 1, j*ᵀ A j* = 1, i*ᵀ A j* = 0 over all frames;
@@ -74,7 +76,8 @@ class Reconstruction:
         measurement matrix (with missing data: of the matrix completed by the model).
     residual_rms : float — RMS over observed (frame, point) pairs of the 2D distance
         between observed and reprojected positions, in pixels.
-    residuals : (F, P) float — those distances; NaN where not observed.
+    residuals : (F, P) float — those distances; NaN where not observed. float32 when
+        ``positions`` was a float32 array, else float64.
     observed : (F, P) bool — which entries were used.
     warnings : tuple of str — degeneracies, fallbacks and dropped frames/points.
     method : ``"svd"`` (closed form, complete unweighted data) or ``"als"``.
@@ -122,7 +125,13 @@ def factorize(
     Parameters
     ----------
     positions : (F, P, 2) float — x = column, y = row of point p in frame f; NaN where the
-        point is not observed. Needs F ≥ 3 frames and P ≥ 4 points.
+        point is not observed. Needs F ≥ 3 frames and P ≥ 4 points. Only read, never
+        modified. Large complete input without weights (2F·P > 2·10⁶) is used where it
+        lies: a C-ordered float64 or float32 array is neither copied nor converted (float32
+        stays float32 in memory; the arithmetic is float64), and no 2F × P matrix is made,
+        so the peak memory beyond the input is the (F, P) ``residuals`` and ``observed``
+        of the result (0.56× the input in float64). Other dtypes or layouts are converted
+        once. No ``copy=False`` option is needed: there is no copy to avoid.
     weights : (F, P) or (F, P, 2) float ≥ 0, optional — per-entry least-squares weights,
         typically 1 / σ² from the tracker's posterior standard deviations. A zero weight
         ignores the entry. Without weights every observation counts equally.
@@ -145,6 +154,10 @@ def factorize(
 
     The closed form (no NaN, no weights) is the report's algorithm; otherwise the fit is
     weighted alternating least squares over the observed entries (see the module notes).
+    For large complete input the rank-3 subspace is certified to 1e-9 rad (Davis–Kahan
+    bound) and the residuals come from the same pass over ``positions`` (the reprojection
+    M S + t equals the rank-3 part of W plus the centroids). The first such call in a
+    new environment compiles three numba kernels (a few seconds, cached on disk).
     Degenerate input is flagged in ``warnings`` rather than raised: a rank-2 W (coplanar
     points, or no rotation out of the image plane), a flat shape, a metric system too
     ill-conditioned to fix depth, and a non-positive-definite A (replaced by the nearest
