@@ -52,6 +52,8 @@ __all__ = ["Reconstruction", "factorize", "metric_upgrade"]
 
 # Frames × points up to which the complete-data path uses a full LAPACK SVD.
 _LAPACK_LIMIT = 2_000_000
+# Largest principal angle (rad) to the exact rank-3 subspace certified for large complete input.
+_SUBSPACE_TOL = 1e-9
 # σ₃ / σ₄ below this: W is not convincingly rank 3.
 _RANK_GAP = 2.0
 # Shape thinner than this (smallest / largest spread) is called coplanar.
@@ -188,7 +190,7 @@ def factorize(
     if not (np.isfinite(tol) and tol >= 0):
         raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
     notes: list[str] = []
-    fit = _streamed_closed_form(positions, weights, rng)
+    fit = _streamed_closed_form(positions, weights, rng, notes)
     if fit is None:
         fit = _general_fit(positions, weights, max_iterations, tol, rng, notes)
     f_ok, p_ok, motion_aff, shape_aff = fit.f_ok, fit.p_ok, fit.motion, fit.shape
@@ -271,7 +273,7 @@ class _AffineFit:
     residual_sum: float = 0.0
 
 
-def _streamed_closed_form(positions: object, weights: object, rng: object) -> _AffineFit | None:
+def _streamed_closed_form(positions: object, weights: object, rng: object, notes: list[str]) -> _AffineFit | None:
     """The closed form straight from a large complete (F, P, 2) array, or None (general path).
 
     W is never built: :func:`~kalmansfm.structure._measurement.streamed_rank` reads
@@ -281,14 +283,21 @@ def _streamed_closed_form(positions: object, weights: object, rng: object) -> _A
     """
     if weights is not None or not isinstance(positions, np.ndarray) or positions.ndim != 3:
         return None
+    if positions.dtype.kind not in "fiu":  # others (and their errors) are the general path's
+        return None
     frames, points, coordinates = positions.shape
     if coordinates != 2 or frames < 3 or points < 4 or 2 * frames * points <= _LAPACK_LIMIT:
         return None
     dtype = positions.dtype if positions.dtype in (np.float32, np.float64) else np.float64
     x = np.ascontiguousarray(positions, dtype=dtype)  # no copy for a C-ordered float32/float64 array
-    fit = streamed_rank(x, 3, tol=1e-9, max_passes=21, rng=np.random.default_rng(rng))
+    fit = streamed_rank(x, 3, tol=_SUBSPACE_TOL, max_passes=12, rng=np.random.default_rng(rng))
     if fit is None:
         return None
+    if fit.angle_bound > _SUBSPACE_TOL and not fit.undetermined:
+        notes.append(
+            f"rank-3 subspace certified only to {fit.angle_bound:.2g} rad after {fit.passes} passes "
+            f"(target {_SUBSPACE_TOL:g}; σ3 and σ4 too close)"
+        )
     root = np.sqrt(fit.s)
     every_f, every_p = np.ones(frames, bool), np.ones(points, bool)
     return _AffineFit(
@@ -303,7 +312,7 @@ def _general_fit(
     positions: object, weights: object, max_iterations: int, tol: float, rng: object, notes: list[str]
 ) -> _AffineFit:
     """Validation, usable frames and points, then the closed form or weighted ALS."""
-    residual_dtype = np.float32 if np.asarray(positions).dtype == np.float32 else np.float64
+    residual_dtype = np.float32 if getattr(positions, "dtype", None) == np.float32 else np.float64
     x, w, observed = _validate(positions, weights)
     if w is not None:
         observed &= (w > 0).any(axis=2)

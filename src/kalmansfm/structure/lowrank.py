@@ -204,8 +204,7 @@ class RitzCertificate:
     values of A); vectors : (ℓ, ℓ) their coordinates G in the basis U; right : (ℓ, n) Bᵀ, with
     Uᵀ W = G diag(σ̂) Bᵀ; bound : bound (radians) on the largest principal angle between span(U Gₖ)
     and the exact leading k-dimensional left subspace; certified : the gap used a rigorous upper
-    bound of σₖ₊₁²; undetermined : σₖ at rounding level (no direction to find); next_value : the
-    σₖ₊₁² used in the gap.
+    bound of σₖ₊₁²; undetermined : σₖ at rounding level (no direction to find).
     """
 
     singular_values: np.ndarray
@@ -214,7 +213,6 @@ class RitzCertificate:
     bound: float
     certified: bool
     undetermined: bool
-    next_value: float
 
 
 def ritz_certificate(
@@ -253,7 +251,7 @@ def ritz_certificate(
     bound = float(np.pi / 2) if gap <= 0 else float(np.arcsin(min(1.0, residual / gap)))
     # σₖ at rounding level: the k-th direction is not determined by the matrix; iterating cannot help.
     undetermined = bool(lam[k - 1] <= (64 * np.finfo(float).eps) ** 2 * lam[0])
-    return RitzCertificate(s, g, bt, bound, certified, undetermined, float(next_value))
+    return RitzCertificate(s, g, bt, bound, certified, undetermined)
 
 
 def _centred_row_norms(w: np.ndarray, offsets: np.ndarray, block_rows: int = 16) -> np.ndarray:
