@@ -69,6 +69,7 @@ def interleaved(contenders: dict, repeat: int) -> tuple[dict, dict, dict]:
     wall, cpu, results = dict.fromkeys(contenders, np.inf), dict.fromkeys(contenders, np.inf), {}
     for _ in range(repeat):
         for name, fn in contenders.items():
+            results.pop(name, None)  # the previous result is freed outside the timed call
             start, start_cpu = time.perf_counter(), time.process_time()
             results[name] = fn()
             cpu[name] = min(cpu[name], time.process_time() - start_cpu)
