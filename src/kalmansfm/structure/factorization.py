@@ -80,7 +80,8 @@ class Reconstruction:
         between observed and reprojected positions, in pixels.
     residuals : (F, P) float — those distances; NaN where not observed. float32 when
         ``positions`` was a float32 array, else float64.
-    observed : (F, P) bool — which entries were used.
+    observed : (F, P) bool — which entries were used (for large complete input, where all
+        were, a read-only all-True view that takes no memory).
     warnings : tuple of str — degeneracies, fallbacks and dropped frames/points.
     method : ``"svd"`` (closed form, complete unweighted data) or ``"als"``.
     iterations : ALS iterations run (0 for ``"svd"``).
@@ -131,8 +132,8 @@ def factorize(
         modified. Large complete input without weights (2F·P > 2·10⁶) is used where it
         lies: a C-ordered float64 or float32 array is neither copied nor converted (float32
         stays float32 in memory; the arithmetic is float64), and no 2F × P matrix is made,
-        so the peak memory beyond the input is the (F, P) ``residuals`` and ``observed``
-        of the result (0.56× the input in float64). Other dtypes or layouts are converted
+        so the peak memory beyond the input is the (F, P) ``residuals`` of the result (0.5×
+        the input in float64, plus about 3 % working arrays). Other dtypes or layouts are converted
         once. No ``copy=False`` option is needed: there is no copy to avoid.
     weights : (F, P) or (F, P, 2) float ≥ 0, optional — per-entry least-squares weights,
         typically 1 / σ² from the tracker's posterior standard deviations. A zero weight
@@ -232,7 +233,8 @@ def factorize(
         # Complete data: the reprojection M S + t is the rank-3 part of W plus the centroids
         # (the upgrade and the gauge only re-parametrise it), so the distances measured in
         # the SVD's last pass are the reprojection residuals.
-        residuals, used = fit.residuals, np.ones((frames, points), bool)
+        # every entry was used: a read-only all-True view rather than another (F, P) array
+        residuals, used = fit.residuals, np.broadcast_to(np.True_, (frames, points))
         residual_rms = float(np.sqrt(fit.residual_sum / residuals.size))
     method, iterations, sv = fit.method, fit.iterations, fit.singular_values
     return Reconstruction(
