@@ -6,6 +6,13 @@ Usage::
     python benchmarks/bench_factorization.py            # 1000 frames x 100000 points (W 2000 x 100000; ~9 GB)
     python benchmarks/bench_factorization.py --frames 200 --points 20000
     python benchmarks/bench_factorization.py --profile  # also a cProfile of one factorize call
+    python benchmarks/bench_factorization.py --steps 4  # CPU time and page faults of each step, 4 calls
+
+The same script runs on the code before issue 17 (the table's factorize row, and ``--steps`` with
+that version's step names)::
+
+    git archive f7ed7b8 src | tar -x -C /tmp/before
+    PYTHONPATH=/tmp/before/src python benchmarks/bench_factorization.py --steps 4
 
 One core: the script sets the BLAS/OpenMP/numba thread variables to 1 before NumPy is imported, so
 our code and scipy's ARPACK run single-threaded in the same process. ``factorize`` gets the
@@ -107,6 +114,64 @@ def _status_kb(field: str) -> float:
     raise OSError(field)
 
 
+# The steps of ``factorize`` timed by ``--steps``: whichever of these the installed version has
+# (the names of commit f7ed7b8 first, then those of the streamed path), so that the same command
+# measures the code before and after issue 17.
+STEPS = {
+    "kalmansfm.structure.factorization": ("_validate", "_centred_measurement_matrix", "truncated_svd",
+                                          "metric_upgrade", "_reprojection_residuals"),
+    "kalmansfm.structure._measurement": ("_start", "_first_pass", "_round_trip", "_projection_pass"),
+}
+
+
+def time_steps(positions: np.ndarray, calls: int) -> None:
+    """CPU time (user, system) and page faults of each step of ``factorize``, per call."""
+    import importlib
+    import resource
+
+    def usage() -> np.ndarray:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return np.array([time.perf_counter(), r.ru_utime, r.ru_stime, r.ru_minflt])
+
+    totals: dict[str, list[np.ndarray]] = {}
+    patched = []
+    for module_name, names in STEPS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            continue
+        for name in names:
+            if not hasattr(module, name):
+                continue
+            original = getattr(module, name)
+
+            def wrapper(*args, _original=original, _name=name, **kwargs):
+                before = usage()
+                out = _original(*args, **kwargs)
+                totals.setdefault(_name, []).append(usage() - before)
+                return out
+
+            setattr(module, name, wrapper)
+            patched.append((module, name, original))
+    try:
+        for _ in range(calls):
+            before = usage()
+            factorize(positions)
+            totals.setdefault("factorize (whole call)", []).append(usage() - before)
+    finally:
+        for module, name, original in patched:
+            setattr(module, name, original)
+    print(f"\nsteps of factorize, {calls} calls (load average {os.getloadavg()[0]:.1f}); per call: wall, user, system "
+          "seconds and page faults, min–max over the calls\n")
+    print("| step | wall (s) | user (s) | system (s) | page faults |")
+    print("|---|---:|---:|---:|---:|")
+    for name, rows in totals.items():
+        per_call = np.array(rows).reshape(calls, -1, 4).sum(axis=1)
+        low, high = per_call.min(axis=0), per_call.max(axis=0)
+        print(f"| {name} | {low[0]:.2f}–{high[0]:.2f} | {low[1]:.2f}–{high[1]:.2f} | {low[2]:.2f}–{high[2]:.2f} "
+              f"| {low[3]:.0f}–{high[3]:.0f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=1000, help="F; W has 2F rows")
@@ -116,6 +181,8 @@ def main() -> None:
     parser.add_argument("--full-svd-points", type=int, default=2000, help="numpy full SVD on the first columns only")
     parser.add_argument("--missing-fraction", type=float, default=0.3, help="holes for the missing-data run (0: skip)")
     parser.add_argument("--profile", action="store_true", help="print a cProfile of one factorize call")
+    parser.add_argument("--steps", type=int, default=0, metavar="CALLS",
+                        help="time the steps of factorize (CPU, page faults) over CALLS calls")
     args = parser.parse_args()
     frames, points = args.frames, args.points
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores shared with other jobs; one thread; "
@@ -138,6 +205,8 @@ def main() -> None:
         factorize(positions)
         profile.disable()
         pstats.Stats(profile).sort_stats("tottime").print_stats(12)
+    if args.steps:
+        time_steps(positions, args.steps)
 
     w = positions.transpose(0, 2, 1).reshape(2 * frames, points)  # a copy (transposed layout)
     w -= w.mean(axis=1, keepdims=True)
