@@ -6,10 +6,11 @@ order, so nothing here builds W: three passes over ``positions`` give the leadin
 subspace of the centred W_c = W − c 1ᵀ (c the frame centroids), its certificate and the
 per-point residuals of the rank-3 fit.
 
-1. *First pass* (one read of ``positions``): the centroids, the squared row norms of W_c
-   and Y = W_c Zᵀ for a start block Z of ℓ = k + 1 rows of W_c, drawn with probability
-   proportional to their squared norm (estimated beforehand on a sample of columns). The
-   first left block is U = orth(Y).
+1. *First pass* (one read of ``positions``): the centroids, ‖W_c‖²_F and Y = W_c Zᵀ for
+   a start block Z: the ℓ = k + 1 leading right singular vectors of 64 rows of W_c drawn
+   with probability proportional to their squared norm (estimated beforehand on a sample
+   of columns). The first left block is U = orth(Y). A NaN or an infinity anywhere shows
+   in the pass's sums, and the caller takes the general path.
 2. *Round trips* (one read each): Z = Uᵀ W_c and Y = W_c Zᵀ = A U (A = W_c W_cᵀ) with the
    same column block of ``positions`` in cache for both. Rayleigh–Ritz on span(U) gives
    the Ritz pairs and the Davis–Kahan bound of :mod:`~kalmansfm.structure.lowrank`. They
@@ -167,9 +168,9 @@ def _start(positions: np.ndarray, width: int, rng: np.random.Generator) -> tuple
     count = min(2 * frames, max(width, _START_ROWS))
     rows = np.sort(rng.choice(2 * frames, size=count, replace=False, p=probability / probability.sum()))
     chosen = positions[rows // 2, :, rows % 2].astype(np.float64, copy=False)
-    chosen -= chosen.mean(axis=1, keepdims=True)  # rows of W_c (their own mean removed exactly)
     if not np.isfinite(chosen).all():
         return None
+    chosen -= chosen.mean(axis=1, keepdims=True)  # rows of W_c (their own mean removed exactly)
     # leading right singular vectors of the chosen rows, from their (count × count) Gram matrix
     _, vectors = np.linalg.eigh(chosen @ chosen.T)
     return shift, vectors[:, ::-1][:, :width].T @ chosen
@@ -189,7 +190,9 @@ def _block_points(frames: int) -> int:
 
 # --- compiled kernels and their NumPy references -------------------------------------------------
 
-_JIT = {"cache": True, "fastmath": True, "nogil": True}
+# Reassociation and contraction (vectorised sums, FMA) but not the no-NaN/no-inf assumptions of
+# full fastmath: a NaN or infinity in ``positions`` must reach the first pass's sums.
+_JIT = {"cache": True, "fastmath": {"reassoc", "contract", "nsz", "arcp"}, "nogil": True}
 
 
 @numba.njit(**_JIT)

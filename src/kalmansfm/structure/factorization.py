@@ -45,7 +45,6 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..estimation._checks import as_float_array, check_count
-from ._measurement import streamed_rank
 from .lowrank import truncated_svd
 
 __all__ = ["Reconstruction", "factorize", "metric_upgrade"]
@@ -290,6 +289,9 @@ def _streamed_closed_form(positions: object, weights: object, rng: object, notes
     frames, points, coordinates = positions.shape
     if coordinates != 2 or frames < 3 or points < 4 or 2 * frames * points <= _LAPACK_LIMIT:
         return None
+    # Imported here: numba (≈ 0.2 s to import) is only needed once an input is this large.
+    from ._measurement import streamed_rank
+
     dtype = positions.dtype if positions.dtype in (np.float32, np.float64) else np.float64
     x = np.ascontiguousarray(positions, dtype=dtype)  # no copy for a C-ordered float32/float64 array
     fit = streamed_rank(x, 3, tol=_SUBSPACE_TOL, max_passes=12, rng=np.random.default_rng(rng))

@@ -78,9 +78,14 @@ def test_streamed_rank_stops_on_an_exactly_rank_two_matrix():
     assert fit.s[2] < 1e-9 * fit.s[0]
 
 
-def test_streamed_rank_declines_nan():
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_streamed_rank_declines_nan_and_inf(bad, monkeypatch):
     x, _ = tracks(np.random.default_rng(3))
-    x[5, 7, 1] = np.nan
+    x[5, 7, 1] = bad
+    # found by the first pass's sums (the compiled kernel) even where the column sample misses it
+    sums, squares, _ = _measurement._first_pass(x, np.zeros((x.shape[0], 2)), np.zeros((4, x.shape[1])))
+    assert not np.isfinite(sums[5, 1]) and not np.isfinite(squares[5, 1]) and np.isfinite(sums[4]).all()
+    monkeypatch.setattr(_measurement, "_SAMPLE_POINTS", 8)
     assert _measurement.streamed_rank(x, 3, tol=1e-9, max_passes=21, rng=np.random.default_rng(0)) is None
 
 
