@@ -269,7 +269,7 @@ class _AffineFit:
     singular_values: np.ndarray
     method: str
     iterations: int
-    residual_dtype: type
+    residual_dtype: np.dtype
     residuals: np.ndarray | None = None
     residual_sum: float = 0.0
 
@@ -292,7 +292,7 @@ def _streamed_closed_form(positions: object, weights: object, rng: object, notes
     # Imported here: numba (≈ 0.2 s to import) is only needed once an input is this large.
     from ._measurement import streamed_rank
 
-    dtype = positions.dtype if positions.dtype in (np.float32, np.float64) else np.float64
+    dtype = positions.dtype if positions.dtype in (np.float32, np.float64) else np.dtype(np.float64)
     x = np.ascontiguousarray(positions, dtype=dtype)  # no copy for a C-ordered float32/float64 array
     fit = streamed_rank(x, 3, tol=_SUBSPACE_TOL, max_passes=12, rng=np.random.default_rng(rng))
     if fit is None:
@@ -316,7 +316,7 @@ def _general_fit(
     positions: object, weights: object, max_iterations: int, tol: float, rng: object, notes: list[str]
 ) -> _AffineFit:
     """Validation, usable frames and points, then the closed form or weighted ALS."""
-    residual_dtype = np.float32 if getattr(positions, "dtype", None) == np.float32 else np.float64
+    residual_dtype = np.dtype(np.float32 if getattr(positions, "dtype", None) == np.float32 else np.float64)
     x, w, observed = _validate(positions, weights)
     if w is not None:
         observed &= (w > 0).any(axis=2)
