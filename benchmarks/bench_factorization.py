@@ -1,50 +1,61 @@
-"""Rank-3 decomposition of a large measurement matrix: ours vs scipy svds(k=3), a randomized range
-finder with one power iteration, and numpy's full SVD; then the other parts of ``factorize``.
+"""Factorization of a large track array: ``kalmansfm.factorize`` end to end vs scipy ``svds(k=3)`` on
+the centred W it implies, then the rank-3 solvers side by side, then the missing-data path.
 
 Usage::
 
-    python benchmarks/bench_factorization.py            # W 2000 x 100000 (needs ~8 GB)
+    python benchmarks/bench_factorization.py            # 1000 frames x 100000 points (W 2000 x 100000; ~9 GB)
     python benchmarks/bench_factorization.py --frames 200 --points 20000
+    python benchmarks/bench_factorization.py --profile  # also a cProfile of one factorize call
+    python benchmarks/bench_factorization.py --steps 4  # CPU time and page faults of each step, 4 calls
 
-Every method gets the same centred W (2F x P). The reference subspace is the top-3 eigenvectors of
-the 2F x 2F Gram matrix W Wᵀ (one BLAS call + eigh, computed once; its eigenvector error is about
-eps·σ1²/(σ3² − σ4²) ≈ 1e-15 rad here). The angle column is the largest principal angle between a
-method's left rank-3 subspace and that reference. Times are the best of a few repeats (ours, the
-3-product variant and the range finder in interleaved rounds); the machine is shared, so the load
-average is printed.
+The same script runs on the code before issue 17 (the table's factorize row, and ``--steps`` with
+that version's step names)::
+
+    git archive f7ed7b8 src | tar -x -C /tmp/before
+    PYTHONPATH=/tmp/before/src python benchmarks/bench_factorization.py --steps 4
+
+One core: the script sets the BLAS/OpenMP/numba thread variables to 1 before NumPy is imported, so
+our code and scipy's ARPACK run single-threaded in the same process. ``factorize`` gets the
+(F, P, 2) track array, as a user calls it (validation, centring, rank-3 SVD, metric upgrade, gauge,
+residuals); svds and the other solvers get the centred W (2F x P) built beforehand, untimed. The
+timed calls alternate (factorize, svds, ...) for ``--repeat`` rounds and the best of each is kept,
+so that both see the same load; the load average is printed. The reference subspace is the top-3
+eigenvectors of the 2F x 2F Gram matrix W Wᵀ (its eigenvector error is about eps·σ1²/(σ3² − σ4²)
+≈ 1e-15 rad here); the angle column is the largest principal angle between a method's left rank-3
+subspace and that reference.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
-import platform
-import time
 
-import numpy as np
-import scipy
-from scipy.sparse.linalg import svds
+for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ[_variable] = "1"
 
-from kalmansfm.structure import align_similarity, factorize, metric_upgrade, subspace_angle, truncated_svd
-from kalmansfm.structure.factorization import _centred_measurement_matrix
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import platform  # noqa: E402
+import pstats  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+from scipy.sparse.linalg import svds  # noqa: E402
+
+from kalmansfm.structure import align_similarity, factorize, subspace_angle, truncated_svd  # noqa: E402
+
+GB = 1e9
 
 
 def scene(frames: int, points: int, noise_px: float, rng: np.random.Generator) -> np.ndarray:
     """(F, P, 2) orthographic tracks of a random rigid object (pixels), 1 px noise by default."""
     shape = rng.normal(size=(points, 3)) * np.array([60.0, 40.0, 25.0])
     q, _ = np.linalg.qr(rng.normal(size=(frames, 3, 3)))
-    positions = np.einsum("fij,pj->fpi", q[:, :2], shape) + rng.uniform(100, 400, size=(frames, 1, 2))
+    positions = shape @ q[:, :2].transpose(0, 2, 1)  # (F, P, 2) = S M_fᵀ
+    positions += rng.uniform(100, 400, size=(frames, 1, 2))
     positions += noise_px * rng.normal(size=positions.shape)
     return positions
-
-
-def timed(fn, repeat: int = 1):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - start)
-    return best, out
 
 
 def range_finder_one_power_iteration(w: np.ndarray, k: int = 3, oversampling: int = 10, seed: int = 0):
@@ -59,95 +70,234 @@ def range_finder_one_power_iteration(w: np.ndarray, k: int = 3, oversampling: in
     return q @ u_b[:, :k], s[:k], vt[:k]
 
 
+def interleaved(contenders: dict, repeat: int) -> tuple[dict, dict, dict]:
+    """Best wall time and best CPU time (user + system, this process) of each contender over
+    ``repeat`` rounds in which they run in turn; and the last results."""
+    wall, cpu, results = dict.fromkeys(contenders, np.inf), dict.fromkeys(contenders, np.inf), {}
+    for _ in range(repeat):
+        for name, fn in contenders.items():
+            results.pop(name, None)  # the previous result is freed outside the timed call
+            start, start_cpu = time.perf_counter(), time.process_time()
+            results[name] = fn()
+            cpu[name] = min(cpu[name], time.process_time() - start_cpu)
+            wall[name] = min(wall[name], time.perf_counter() - start)
+    return wall, cpu, results
+
+
+def peak_memory(fn) -> tuple[float, float | None]:
+    """(tracemalloc peak of NumPy + Python allocations, rise of the process's peak RSS) in bytes.
+
+    The RSS figure resets the kernel's high-water mark first (``/proc/self/clear_refs``); None
+    where that is not available.
+    """
+    try:
+        with open("/proc/self/clear_refs", "w") as handle:
+            handle.write("5")
+        baseline = _status_kb("VmRSS")
+    except OSError:
+        baseline = None
+    tracemalloc.start()
+    try:
+        fn()
+        traced = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    rss = None if baseline is None else (_status_kb("VmHWM") - baseline) * 1024.0
+    return traced, rss
+
+
+def _status_kb(field: str) -> float:
+    with open("/proc/self/status") as handle:
+        for line in handle:
+            if line.startswith(field + ":"):
+                return float(line.split()[1])
+    raise OSError(field)
+
+
+# The steps of ``factorize`` timed by ``--steps``: whichever of these the installed version has
+# (the names of commit f7ed7b8 first, then those of the streamed path), so that the same command
+# measures the code before and after issue 17.
+STEPS = {
+    "kalmansfm.structure.factorization": ("_validate", "_centred_measurement_matrix", "truncated_svd",
+                                          "metric_upgrade", "_reprojection_residuals"),
+    "kalmansfm.structure._measurement": ("_start", "_first_pass", "_round_trip", "_projection_pass"),
+}
+
+
+def time_steps(positions: np.ndarray, calls: int) -> None:
+    """CPU time (user, system) and page faults of each step of ``factorize``, per call."""
+    import importlib
+    import resource
+
+    def usage() -> np.ndarray:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return np.array([time.perf_counter(), r.ru_utime, r.ru_stime, r.ru_minflt])
+
+    totals: dict[str, list[np.ndarray]] = {}
+    patched = []
+    for module_name, names in STEPS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            continue
+        for name in names:
+            if not hasattr(module, name):
+                continue
+            original = getattr(module, name)
+
+            def wrapper(*args, _original=original, _name=name, **kwargs):
+                before = usage()
+                out = _original(*args, **kwargs)
+                totals.setdefault(_name, []).append(usage() - before)
+                return out
+
+            setattr(module, name, wrapper)
+            patched.append((module, name, original))
+    try:
+        for _ in range(calls):
+            before = usage()
+            factorize(positions)
+            totals.setdefault("factorize (whole call)", []).append(usage() - before)
+    finally:
+        for module, name, original in patched:
+            setattr(module, name, original)
+    print(f"\nsteps of factorize, {calls} calls (load average {os.getloadavg()[0]:.1f}); per call: wall, user, system "
+          "seconds and page faults, min–max over the calls\n")
+    print("| step | wall (s) | user (s) | system (s) | page faults |")
+    print("|---|---:|---:|---:|---:|")
+    for name, rows in totals.items():
+        per_call = np.array(rows).reshape(calls, -1, 4).sum(axis=1)
+        low, high = per_call.min(axis=0), per_call.max(axis=0)
+        print(f"| {name} | {low[0]:.2f}–{high[0]:.2f} | {low[1]:.2f}–{high[1]:.2f} | {low[2]:.2f}–{high[2]:.2f} "
+              f"| {low[3]:.0f}–{high[3]:.0f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=1000, help="F; W has 2F rows")
     parser.add_argument("--points", type=int, default=100_000, help="P; W has P columns")
     parser.add_argument("--noise", type=float, default=1.0, help="pixel noise std")
+    parser.add_argument("--repeat", type=int, default=2, help="timed rounds (best of)")
     parser.add_argument("--full-svd-points", type=int, default=2000, help="numpy full SVD on the first columns only")
-    parser.add_argument("--missing-frames", type=int, default=200)
-    parser.add_argument("--missing-points", type=int, default=20_000)
-    parser.add_argument("--missing-fraction", type=float, default=0.2)
+    parser.add_argument("--missing-fraction", type=float, default=0.3, help="holes for the missing-data run (0: skip)")
+    parser.add_argument("--profile", action="store_true", help="print a cProfile of one factorize call")
+    parser.add_argument("--steps", type=int, default=0, metavar="CALLS",
+                        help="time the steps of factorize (CPU, page faults) over CALLS calls")
     args = parser.parse_args()
-    rng = np.random.default_rng(0)
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores shared with other jobs; load average "
-          f"{os.getloadavg()[0]:.1f} at start; numpy {np.__version__}, scipy {scipy.__version__}")
+    frames, points = args.frames, args.points
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores shared with other jobs; one thread; "
+          f"load average {os.getloadavg()[0]:.1f} at start; numpy {np.__version__}, scipy {scipy.__version__}")
 
-    positions = scene(args.frames, args.points, args.noise, rng)
-    w, _ = _centred_measurement_matrix(positions)
+    positions = scene(frames, points, args.noise, np.random.default_rng(0))
+    size_in = f"{frames} x {points} x 2"
+    start = time.perf_counter()
+    warm_up = positions[:, : max(4, 2_000_000 // (2 * frames) + 1)]  # just large enough for the streamed path
+    factorize(warm_up)  # numba kernels: compile or load the cache, float64 and float32
+    factorize(warm_up.astype(np.float32))
+    print(f"input: {size_in} float64, {positions.nbytes / GB:.2f} GB; first call (kernel compilation or cache "
+          f"load, small slice) {time.perf_counter() - start:.1f} s")
+
+    traced, rss = peak_memory(lambda: factorize(positions))
+    rss_text = "n/a" if rss is None else f"{rss / GB:.2f} GB ({rss / positions.nbytes:.2f}x)"
+    print(f"factorize peak memory: tracemalloc {traced / GB:.2f} GB ({traced / positions.nbytes:.2f}x the input), "
+          f"peak RSS rise {rss_text}")
+    if args.profile:
+        profile = cProfile.Profile()
+        profile.enable()
+        factorize(positions)
+        profile.disable()
+        pstats.Stats(profile).sort_stats("tottime").print_stats(12)
+    if args.steps:
+        time_steps(positions, args.steps)
+
+    w = positions.transpose(0, 2, 1).reshape(2 * frames, points)  # a copy (transposed layout)
+    w -= w.mean(axis=1, keepdims=True)
     size = f"{w.shape[0]} x {w.shape[1]}"
 
-    t_gram, gram = timed(lambda: w @ w.T)
-    t_eigh, (eigenvalues, eigenvectors) = timed(lambda: np.linalg.eigh(gram))
-    exact = eigenvectors[:, ::-1][:, :3]
-    sigma = np.sqrt(np.maximum(eigenvalues[::-1][:5], 0))
-    print(f"W {size}: singular values {np.array2string(sigma, precision=1)} (σ4/σ3 = {sigma[3] / sigma[2]:.2g})")
-
-    rows = []  # (implementation, size, seconds, angle, note)
-    # The three fast methods are timed in interleaved rounds (best of 4 each), so that they see the
-    # same load on a shared machine.
+    single = positions.astype(np.float32)
+    traced32, _ = peak_memory(lambda: factorize(single))
     contenders = {
+        "factorize": lambda: factorize(positions),
+        "factorize32": lambda: factorize(single),
+        "svds": lambda: svds(w, k=3, random_state=0),
         "ours": lambda: truncated_svd(w, 3, method="randomized"),
         "three": lambda: truncated_svd(w, 3, method="randomized", max_passes=3),
         "finder": lambda: range_finder_one_power_iteration(w),
     }
-    best, results = {name: np.inf for name in contenders}, {}
-    for _ in range(4):
-        for name, fn in contenders.items():
-            seconds, results[name] = timed(fn)
-            best[name] = min(best[name], seconds)
-    t_ours, ours = best["ours"], results["ours"]
-    rows.append(("**kalmansfm `truncated_svd`** (tol 1e-9 rad, certified)", size, t_ours,
-                 subspace_angle(ours.u, exact),
-                 f"{ours.passes} products with ℓ = {ours.s.size + ours.extra_singular_values.size} columns, "
-                 f"Davis–Kahan bound {ours.angle_bound:.1e} ({'rigorous' if ours.certified else 'estimate'})"))
-    three = results["three"]
-    rows.append(("kalmansfm, stopped after 3 products", size, best["three"], subspace_angle(three.u, exact),
-                 f"bound {three.angle_bound:.1e}"))
-    rows.append(("randomized range finder, 1 power iteration, ℓ = 13 (Halko et al.)", size, best["finder"],
-                 subspace_angle(results["finder"][0], exact), "4 products"))
-    t_svds, (u_svds, _, _) = timed(lambda: svds(w, k=3, random_state=0))
-    rows.append(("scipy.sparse.linalg.svds(k=3), ARPACK", size, t_svds, subspace_angle(u_svds, exact), ""))
-    rows.append(("W Wᵀ (one GEMM) + numpy eigh of the 2F x 2F Gram", size, t_gram + t_eigh, 0.0,
-                 f"GEMM {t_gram:.1f} s + eigh {t_eigh:.1f} s; the reference"))
+    load_before = os.getloadavg()[0]
+    best, cpu, results = interleaved(contenders, args.repeat)
+    load_after = os.getloadavg()[0]
+
+    t_gram = time.perf_counter()
+    gram = w @ w.T
+    t_gram = time.perf_counter() - t_gram
+    t_eigh = time.perf_counter()
+    eigenvalues, eigenvectors = np.linalg.eigh(gram)
+    t_eigh = time.perf_counter() - t_eigh
+    del gram
+    best["gram"] = t_gram + t_eigh
+    exact = eigenvectors[:, ::-1][:, :3]
+    sigma = np.sqrt(np.maximum(eigenvalues[::-1][:5], 0))
+    print(f"W {size}: singular values {np.array2string(sigma, precision=1)} (σ4/σ3 = {sigma[3] / sigma[2]:.2g})")
+
+    rec, ours, three = results["factorize"], results["ours"], results["three"]
+    rows = [  # (key, implementation, size, angle, note)
+        ("factorize", "**kalmansfm `factorize`**, complete data, end to end", size_in,
+         subspace_angle(rec.motion.reshape(-1, 3), exact),
+         f"from the (F, P, 2) array; peak memory {traced / GB:.2f} GB = {traced / positions.nbytes:.2f}x the input "
+         f"(tracemalloc); residual {rec.residual_rms:.6f} px"),
+        ("factorize32", "kalmansfm `factorize`, the same positions as float32", size_in,
+         subspace_angle(results["factorize32"].motion.reshape(-1, 3), exact),
+         f"peak memory {traced32 / GB:.2f} GB = {traced32 / single.nbytes:.2f}x its input; the angle is to the "
+         "float64 reference (the data differ by float32 rounding)"),
+        ("svds", "scipy.sparse.linalg.svds(k=3), ARPACK", size, subspace_angle(results["svds"][0], exact),
+         "on the centred W"),
+        ("ours", "kalmansfm `truncated_svd` (tol 1e-9 rad, certified)", size, subspace_angle(ours.u, exact),
+         f"{ours.passes} products with ℓ = {ours.s.size + ours.extra_singular_values.size} columns, "
+         f"Davis–Kahan bound {ours.angle_bound:.1e} ({'rigorous' if ours.certified else 'estimate'})"),
+        ("three", "kalmansfm `truncated_svd`, stopped after 3 products", size, subspace_angle(three.u, exact),
+         f"bound {three.angle_bound:.1e}"),
+        ("finder", "randomized range finder, 1 power iteration, ℓ = 13 (Halko et al.)", size,
+         subspace_angle(results["finder"][0], exact), "4 products"),
+        ("gram", "W Wᵀ (one GEMM) + numpy eigh of the 2F x 2F Gram", size, 0.0,
+         f"GEMM {t_gram:.1f} s + eigh {t_eigh:.1f} s; the reference"),
+    ]
     small = w[:, : args.full_svd_points]
-    t_full, _ = timed(lambda: np.linalg.svd(small, full_matrices=False))
+    start = time.perf_counter()
+    np.linalg.svd(small, full_matrices=False)
+    t_full = time.perf_counter() - start
     scale = w.shape[1] / small.shape[1]
-    rows.append((f"numpy.linalg.svd (full) on {small.shape[1]} columns", f"{small.shape[0]} x {small.shape[1]}",
-                 t_full, float("nan"), f"x{scale:.0f} columns: ≈ {t_full * scale:.0f} s for the whole W"))
-    del gram, small
+    best["full"] = t_full
+    rows.append(("full", f"numpy.linalg.svd (full) on {small.shape[1]} columns", f"{small.shape[0]} x {small.shape[1]}",
+                 float("nan"), f"x{scale:.0f} columns: ≈ {t_full * scale:.0f} s for the whole W"))
+    del w, small, single
 
-    t_fact, rec = timed(lambda: factorize(positions), repeat=2)
-    rows.insert(1, ("**kalmansfm `factorize`**, complete data, end to end", f"{args.frames} x {args.points} x 2",
-                    t_fact, subspace_angle(rec.motion.reshape(-1, 3), exact),
-                    "validation, W layout + centring, SVD, metric upgrade, gauge, residuals"))
+    print(f"\nbest of {args.repeat} interleaved rounds; load average {load_before:.1f} before, {load_after:.1f} after\n")
+    print("| implementation | size | seconds (wall) | ratio to svds | CPU s (user + sys) | CPU ratio to svds "
+          "| max principal angle to exact (rad) | notes |")
+    print("|---|---|---:|---:|---:|---:|---:|---|")
+    for key, name, shown, angle, note in rows:
+        timed = f"{cpu[key]:.3f} | {cpu[key] / cpu['svds']:.2f}" if key in cpu else "– | –"
+        print(f"| {name} | {shown} | {best[key]:.3f} | {best[key] / best['svds']:.2f} | {timed} | {angle:.1e} | {note} |")
 
-    print()
-    print("| implementation | size | seconds | ratio to ours (SVD) | max principal angle to exact (rad) | notes |")
-    print("|---|---|---:|---:|---:|---|")
-    for name, sz, t, angle, note in rows:
-        print(f"| {name} | {sz} | {t:.3f} | {t / t_ours:.1f} | {angle:.1e} | {note} |")
-
-    affine_rows = ours.u * np.sqrt(ours.s)
-    t_metric, _ = timed(lambda: metric_upgrade(affine_rows), repeat=3)
-    del w
-    mf, mp = args.missing_frames, args.missing_points
-    holes = scene(mf, mp, args.noise, np.random.default_rng(1))
-    t_complete, complete = timed(lambda: factorize(holes), repeat=2)
-    holes[np.random.default_rng(2).random((mf, mp)) < args.missing_fraction] = np.nan
-    t_als, rec = timed(lambda: factorize(holes), repeat=2)
-    fit = align_similarity(rec.points, complete.points, allow_reflection=True)
-    radius = np.sqrt(np.mean(np.sum(complete.points**2, axis=1)))
-    print()
-    print("| step | size | seconds |")
-    print("|---|---|---:|")
-    print(f"| metric upgrade (A by least squares, Cholesky) | {args.frames} frames | {t_metric:.4f} |")
-    print(f"| factorize, complete data (closed form) | {mf} x {mp} x 2 | {t_complete:.2f} |")
-    print(f"| factorize, {args.missing_fraction:.0%} missing (block init + ALS, {rec.iterations} iterations) "
-          f"| {mf} x {mp} x 2 | {t_als:.2f} |")
-    print(f"missing-data shape vs complete-data shape: {fit.rms / radius:.1e} of the RMS radius; "
-          f"residual {rec.residual_rms:.3f} px vs {complete.residual_rms:.3f} px")
-    print(f"load average at end: {os.getloadavg()[0]:.1f}")
+    if args.missing_fraction > 0:
+        holes = positions.copy()
+        holes[np.random.default_rng(2).random((frames, points)) < args.missing_fraction] = np.nan
+        start = time.perf_counter()
+        traced_als, rss_als = peak_memory(lambda: results.__setitem__("als", factorize(holes)))
+        t_als = time.perf_counter() - start
+        als = results["als"]
+        fit = align_similarity(als.points, rec.points, allow_reflection=True)
+        radius = np.sqrt(np.mean(np.sum(rec.points**2, axis=1)))
+        rss_text = "n/a" if rss_als is None else f"{rss_als / GB:.2f} GB"
+        print(f"\n| missing data | size | seconds | peak memory (tracemalloc / RSS rise) | ALS iterations | "
+              f"shape vs complete data (RMS radius) | residual (px) |")
+        print("|---|---|---:|---|---:|---:|---:|")
+        print(f"| {args.missing_fraction:.0%} of the positions NaN | {size_in} | {t_als:.1f} | "
+              f"{traced_als / GB:.2f} GB ({traced_als / holes.nbytes:.2f}x) / {rss_text} | {als.iterations} | "
+              f"{fit.rms / radius:.1e} | {als.residual_rms:.4f} (complete: {rec.residual_rms:.4f}) |")
+        print("(one call, with tracemalloc running)")
+    print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

@@ -15,12 +15,14 @@ Symbols (as in every textbook and in FilterPy):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from ..errors import InvalidInputError, SingularCovarianceError
-from . import _decoupled
 from .._validation import as_float_array, check_covariance, check_finite, check_shape
+from . import _decoupled, _kernels
+from ._buffers import BufferPool
 from .smoothing import FilterRun
 
 __all__ = [
@@ -392,6 +394,172 @@ def innovation_statistics(
     return InnovationStatistics(y, S_out, nis, ll)
 
 
+class _MaskedUpdate:
+    """Statistics of one compiled update of the general form, computed from the prior on access.
+
+    ``prior`` is the step's :class:`_Prior` (internal layout: x (n, N), P (n, n, N) or
+    shared (n, n)); ``Y`` (m, N) the innovations the kernel wrote (NaN where not
+    measured).  Missing components are masked as in the kernel: their rows and
+    columns of S become the identity's, so one factorisation serves every NaN pattern.
+    """
+
+    def __init__(self, prior: _Prior, Y: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
+        self._prior = prior
+        self._Y = Y
+        self._H = H
+        self._R = R
+        self._stats: dict[str, np.ndarray] | None = None
+
+    @property
+    def y(self) -> np.ndarray:
+        return self._Y.T
+
+    @property
+    def measured(self) -> np.ndarray:
+        return ~np.isnan(self._Y.T)
+
+    def _compute(self) -> dict[str, np.ndarray]:
+        if self._stats is None:
+            P = self._prior.get()[1]
+            if P.ndim == 3:
+                P = np.moveaxis(P, -1, 0)
+            self._stats = _masked_statistics(P, self.y, self._H, self._R)
+        return self._stats
+
+    S = property(lambda self: self._compute()["S"])
+    K = property(lambda self: self._compute()["K"])
+    nis = property(lambda self: self._compute()["nis"])
+    log_likelihood = property(lambda self: self._compute()["log_likelihood"])
+
+
+def _masked_statistics(P: np.ndarray, y: np.ndarray, H: np.ndarray, R: np.ndarray) -> dict[str, np.ndarray]:
+    """S, K, NIS and log-likelihood of innovations y (N, m) (NaN = not measured) under prior covariances P.
+
+    The NumPy form of the compiled update's masking: S' is S with the unmeasured rows
+    and columns replaced by the identity's, and (P Hᵀ)' has their columns set to 0, so
+    K = (P Hᵀ)' S'⁻¹ is the gain of the measured components alone (0 for the others),
+    yᵀ S'⁻¹ y over the measured components is the NIS, and log det S' = log det S of the
+    measured block.  S itself is returned for every filter, measured or not.
+    """
+    N, m = y.shape
+    seen = ~np.isnan(y)
+    HPHt = H @ P @ np.swapaxes(H, -1, -2)
+    S = np.broadcast_to(_symmetrize(HPHt + R), (N, m, m))
+    both = seen[:, :, None] & seen[:, None, :]
+    L = _cholesky_checked(np.where(both, S, np.eye(m, dtype=S.dtype)), "the innovation covariance S = H P Hᵀ + R")
+    PHt = (P @ np.swapaxes(H, -1, -2)) * seen[:, None, :]
+    K = np.swapaxes(_solve_upper_transposed(L, _solve_lower(L, np.swapaxes(PHt, -1, -2))), -1, -2)
+    w = _solve_lower(L, np.where(seen, y, 0.0)[..., None])[..., 0]
+    nis = np.sum(w * w, axis=-1)
+    log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+    count = seen.sum(axis=1)
+    ll = -0.5 * (nis + log_det + count * _LOG_2PI)
+    nothing = count == 0
+    return {"S": S, "K": K, "nis": np.where(nothing, np.nan, nis).astype(y.dtype),
+            "log_likelihood": np.where(nothing, np.nan, ll).astype(y.dtype)}
+
+
+class _Prior:
+    """A step's prior in the filter's internal layout, computed on first use from the previous posterior.
+
+    The compiled step predicts and updates in one pass without writing the prior;
+    ``compute`` (a function of the previous posterior and the transition, holding
+    no reference to the filter) recomputes it with the same arithmetic when asked.
+    """
+
+    __slots__ = ("_compute", "_value")
+
+    def __init__(self, value: tuple[np.ndarray, np.ndarray] | None = None, compute=None) -> None:
+        self._value = value
+        self._compute = compute
+
+    def get(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._value is None:
+            self._value = self._compute()
+            self._compute = None
+        return self._value
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return self._value if self._value is not None else ()
+
+
+def _cv_prior(X, C, dt, q, u, take) -> tuple[np.ndarray, np.ndarray]:
+    """The decoupled prior (X⁻, C⁻) of the posterior (X, C); C (B, 3) shared or (B, 3, N)."""
+    Xp = take(X.shape, X.dtype)
+    Cp = take(C.shape, C.dtype) if C.ndim == 3 else np.empty_like(C)
+    with _kernels.threads_for(X.shape[1]):
+        _kernels.cv_predict(X, C if C.ndim == 3 else C[:, :, None], dt, q, u, Xp, Cp if C.ndim == 3 else Cp[:, :, None])
+    return Xp, Cp
+
+
+def _dense_prior(x, P, F, Q, u, take) -> tuple[np.ndarray, np.ndarray]:
+    """The general form's prior (x⁻, P⁻) of the posterior (x (n, N), P (n, n) shared or (n, n, N))."""
+    xp = take(x.shape, x.dtype)
+    u = _no_input(x) if u is None else u
+    with _kernels.threads_for(x.shape[1]):
+        if P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
+            _kernels.dense_predict_states(x, _plain(F), u, xp)
+            # the shared covariance's prior as kalman_predict computes it
+            return xp, _symmetrize(F @ P @ F.T + Q)
+        if P.ndim == 2:
+            P = _per_track(P, x.shape[1])
+        Pp = take(P.shape, P.dtype)
+        _kernels.dense_predict(x, P, _stacked(F), _stacked(Q), u, xp, Pp)
+    return xp, Pp
+
+
+def _stacked(M: np.ndarray) -> np.ndarray:
+    """A model matrix as the dense kernels take it: (1, r, c) when shared, (N, r, c) as it is."""
+    return _plain(M if M.ndim == 3 else M[None])
+
+
+def _plain(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous writable array (copied only if it is not): one compiled kernel per dtype."""
+    return a if a.flags.c_contiguous and a.flags.writeable else np.array(a, order="C")
+
+
+def _no_input(x: np.ndarray) -> np.ndarray:
+    """The dense kernels' "no known input u": an (n, 0) array."""
+    return np.zeros((x.shape[0], 0), dtype=x.dtype)
+
+
+def _per_track(P: np.ndarray, N: int) -> np.ndarray:
+    """A shared (n, n) covariance as (n, n, N) structure-of-arrays copies."""
+    return np.ascontiguousarray(np.broadcast_to(P[:, :, None], (*P.shape, N)))
+
+
+def _as_complex(z: np.ndarray) -> np.ndarray:
+    """(N, 2) positions as (N,) complex x + i y, a view (the compiled loop reads them as one stream)."""
+    z = _plain(z)
+    return z.view(np.complex128 if z.dtype == np.float64 else np.complex64)[:, 0]
+
+
+def _clearly_positive_definite_blocks(P: np.ndarray) -> bool:
+    """True when every (4, 4) matrix of the stack P is exactly symmetric, has no x–y coupling and the
+    smallest eigenvalue of each of its two 2×2 blocks, at least det / trace, is above 1e-9 of the
+    matrix's largest entry (far above the rounding of an eigen-decomposition).
+
+    The tracker hands over such a stack each time tracks end; this test costs a few passes over
+    it, where ``check_covariance`` takes an eigen-decomposition per matrix.  False means "not
+    shown here", and ``check_covariance`` decides (and words the error).
+    """
+    if P.ndim != 3 or P.shape[-2:] != (4, 4) or not np.isfinite(P).all():
+        return False
+    flat = P.reshape(P.shape[0], 16)
+    if not np.array_equal(flat[:, [2, 3, 7, 1, 6, 11]], flat[:, [8, 12, 13, 4, 9, 14]]):  # Pᵀ = P
+        return False
+    blocks = _decoupled.axis_blocks(P)
+    if blocks is None:
+        return False
+    p00, p01, p11 = blocks[..., 0], blocks[..., 1], blocks[..., 2]
+    scale = np.abs(flat).max(axis=1)[:, None]
+    return bool(np.all(p00 > 0) and np.all(p00 * p11 - p01 * p01 > 1e-9 * scale * (p00 + p11)))
+
+
+def _infinite_measurement() -> InvalidInputError:
+    return InvalidInputError("z must not contain infinity (use NaN for a missing measurement)")
+
+
 class KalmanFilter:
     """N independent linear Kalman filters that share one model (F, H, Q; R shared or per filter).
 
@@ -403,9 +571,10 @@ class KalmanFilter:
     H : (m, n) measurement matrix, or (N, m, n) one per filter.
     Q : (n, n) process noise covariance, or (N, n, n).
     R : (m, m) measurement noise covariance, or (N, m, m) one per filter.
-    dtype : ``np.float64`` (default) or ``np.float32`` (half the memory; on the
-        constant-velocity model at pixel scale the states stay within 3e-4 px of
-        float64 over 100 steps, tested < 2e-3 px, see ``docs/kalman.md``).
+    dtype : ``np.float64`` (default) or ``np.float32`` (half the memory, computed in
+        float32 throughout; on the constant-velocity model at pixel scale the
+        states stay within 3e-4 px of float64 over 100 steps, tested < 2e-3 px,
+        see ``docs/kalman.md``).
     joseph : Joseph-form covariance update (default, keeps P symmetric PSD);
         False uses P = (I - K H) P, which is cheaper.
 
@@ -416,8 +585,11 @@ class KalmanFilter:
     :meth:`run` for a batch with history, :func:`~kalmansfm.estimation.smoothing.smooth`
     to smooth it.
 
-    The filter picks the cheapest exact arithmetic for the model, with the same
-    results:
+    The arithmetic runs in compiled kernels (numba) that read and write each
+    filter's state and covariance once per step: ``predict`` only records the
+    transition, and the following ``update`` predicts and updates in one pass (the
+    prior is computed when it is read, with the same arithmetic).  The filter
+    picks the cheapest exact form for the model, with the same results:
 
     * the covariance is kept as one shared matrix for as long as every filter has
       the same history (same P0, all measured every step), so 100 000 tracks cost
@@ -427,8 +599,11 @@ class KalmanFilter:
       y (the model of :func:`~kalmansfm.estimation.constant_velocity_2d`), the filter
       runs as two 2-state filters with a scalar measurement, storing three
       numbers per covariance block (one block for x and y while their histories
-      agree) and updating them elementwise; ``P`` is then assembled as
-      (N, 4, 4) on access (read-only; assign ``kf.P = ...`` to change it).
+      agree); ``P`` is then assembled as (N, 4, 4) on access (read-only; assign
+      ``kf.P = ...`` to change it).
+
+    The arrays a step returns (``kf.x``, ``kf.P``, ...) keep their values as long as
+    they are held; the filter reuses its storage only for arrays nobody holds.
 
     Examples
     --------
@@ -481,12 +656,17 @@ class KalmanFilter:
         self.H = self._measurement_matrix(H)
         self.R = self._measurement_noise(R)
         P_arr = self._covariance(P)
-        self._dense: tuple[np.ndarray, np.ndarray] | None = None  # (x, P) in the general form
-        self._dense_prior: tuple[np.ndarray, np.ndarray] | None = None
-        self._fast: tuple[np.ndarray, np.ndarray] | None = None  # (X, C) in the decoupled form
-        self._fast_prior: tuple[np.ndarray, np.ndarray] | None = None
+        # The state in one of two internal forms, the track index last (structure of arrays):
+        # decoupled constant-velocity (X (4, N), C (B, 3) shared or (B, 3, N)), or general
+        # (x (n, N), P (n, n) shared or (n, n, N)).
+        self._fast: tuple[np.ndarray, np.ndarray] | None = None
+        self._dense: tuple[np.ndarray, np.ndarray] | None = None
+        self._pending: tuple[str, tuple] | None = None  # a predict recorded, not applied yet
+        self._prior: _Prior | None = None  # the prior of the last predict (or the state before the last update)
         self._dense_cache: dict[str, np.ndarray] = {}
         self._last: object | None = None
+        self._last_buffers: tuple[np.ndarray, ...] = ()
+        self._pool = BufferPool()
         self._last_F = self.F
         self._set_state(x_arr, P_arr, initial=True)
 
@@ -543,7 +723,8 @@ class KalmanFilter:
                 arr = arr[0]
             else:
                 check_shape("P", arr, (self.n_filters, n, n), "(one covariance per filter) or (n, n) shared")
-        check_covariance("P", arr)
+        if not _clearly_positive_definite_blocks(arr):
+            check_covariance("P", arr)
         return arr
 
     # -- the two internal forms ------------------------------------------------
@@ -564,6 +745,10 @@ class KalmanFilter:
         r = _decoupled.diagonal_noise(R)
         return None if r is None else (r if r.ndim == 1 else np.ascontiguousarray(r.T))
 
+    @property
+    def _state(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._fast if self._fast is not None else self._dense
+
     def _set_state(self, x: np.ndarray, P: np.ndarray, *, initial: bool = False) -> None:
         """Store (x, P) in the decoupled form when the model allows it (and we are in it), else densely."""
         self._dense_cache = {}
@@ -572,26 +757,54 @@ class KalmanFilter:
         blocks = _decoupled.axis_blocks(P) if fits and (initial or self._fast is not None) else None
         if blocks is not None:
             self._fast = (np.ascontiguousarray(x.T), _decoupled.compact_covariance(blocks))
-            if initial:
-                self._fast_prior = self._fast
         else:
             self._to_dense()
-            self._dense = (x, P.copy())
-            if initial:
-                self._dense_prior = self._dense
+            self._dense = (np.ascontiguousarray(x.T), self._structure_of_arrays(P))
+        if initial:
+            self._prior = _Prior(self._state)
+
+    @staticmethod
+    def _structure_of_arrays(P: np.ndarray) -> np.ndarray:
+        """(N, n, n) → (n, n, N) (a new array); a shared (n, n) is copied as it is."""
+        return np.ascontiguousarray(np.moveaxis(P, 0, -1)) if P.ndim == 3 else P.copy()
 
     def _to_dense(self) -> None:
         """Leave the decoupled form for good (a step that couples x and y, or a general H)."""
         if self._fast is None:
             return
-        self._dense = self._expand(self._fast)
-        self._dense_prior = self._expand(self._fast_prior) if self._fast_prior is not None else self._dense
-        self._fast = self._fast_prior = None
+        self._settle()
+        expand = lambda C: self._structure_of_arrays(_decoupled.dense_covariance(C, self.n_filters))  # noqa: E731
+        X, C = self._fast
+        self._dense = (X, expand(C))
+        Xp, Cp = self._prior.get()
+        self._prior = _Prior((Xp, expand(Cp)))
+        self._fast = None
         self._dense_cache = {}
 
-    def _expand(self, fast: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        X, C = fast
-        return np.ascontiguousarray(X.T), _decoupled.dense_covariance(C, self.n_filters)
+    def _settle(self) -> None:
+        """Apply a recorded predict (someone reads the prior, or a second predict comes)."""
+        if self._pending is None:
+            return
+        kind, transition = self._pending
+        self._pending = None
+        state = self._state
+        prior = (_cv_prior if kind == "cv" else _dense_prior)(*state, *transition, self._pool.take)
+        self._commit(prior, _Prior(prior))
+
+    def _commit(self, state: tuple[np.ndarray, np.ndarray], prior: _Prior, last: object | None = None,
+                buffers: tuple[np.ndarray, ...] = ()) -> None:
+        """Make ``state`` current; the arrays no longer referenced directly go back to the pool."""
+        released = (*self._state, *self._prior.arrays(), *(self._last_buffers if last is not None else ()))
+        if self._fast is not None:
+            self._fast = state
+        else:
+            self._dense = state
+        self._prior = prior
+        if last is not None:
+            self._last = last
+            self._last_buffers = buffers
+        self._dense_cache = {}
+        self._pool.release(*released)
 
     # -- public state ----------------------------------------------------------
     @property
@@ -617,29 +830,30 @@ class KalmanFilter:
     @property
     def shared_covariance(self) -> bool:
         """True while all filters have one covariance (stored once)."""
-        if self._fast is not None:
-            return self._fast[1].ndim == 2
-        return self._dense[1].ndim == 2
+        return self._state[1].ndim == 2
 
     def _present(self, a: np.ndarray, per_filter_ndim: int) -> np.ndarray:
         if a.ndim < per_filter_ndim:  # shared: show it per filter without copying
             a = np.broadcast_to(a, (self.n_filters, *a.shape))
         return a[0] if self._single else a
 
-    def _dense_P(self, key: str, fast: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        C = fast[1]
+    def _public_P(self, key: str, state: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """(N, n, n) view of a state's covariance (assembled once from decoupled blocks, then cached)."""
+        C = state[1]
+        if self._fast is None:
+            return self._present(np.moveaxis(C, -1, 0) if C.ndim == 3 else C, 3)
         cached = self._dense_cache.get(key)
         if cached is None or cached[0] is not C:
             P = _decoupled.dense_covariance(C, self.n_filters)
             P.flags.writeable = False
-            self._dense_cache[key] = (C, P)
-            return P
-        return cached[1]
+            cached = self._dense_cache[key] = (C, P)
+        return self._present(cached[1], 3)
 
     @property
     def x(self) -> np.ndarray:
         """Current states, (N, n) (or (n,) for a single filter)."""
-        x = self._fast[0].T if self._fast is not None else self._dense[0]
+        self._settle()
+        x = self._state[0].T
         return x[0] if self._single else x
 
     @x.setter
@@ -647,33 +861,37 @@ class KalmanFilter:
         arr = np.atleast_2d(self._array("x", value))
         check_shape("x", arr, (self.n_filters, self.dim_x), "(one state per filter)")
         check_finite("x", arr)
+        self._settle()
+        state = (np.ascontiguousarray(arr.T), self._state[1])
         if self._fast is not None:
-            self._fast = (np.ascontiguousarray(arr.T), self._fast[1])
+            self._fast = state
         else:
-            self._dense = (arr.copy(), self._dense[1])
+            self._dense = state
 
     @property
     def P(self) -> np.ndarray:
         """Current covariances, (N, n, n) (read-only when shared or assembled from the decoupled form)."""
-        P = self._dense_P("P", self._fast) if self._fast is not None else self._dense[1]
-        return self._present(P, 3)
+        self._settle()
+        return self._public_P("P", self._state)
 
     @P.setter
     def P(self, value: object) -> None:
         P = self._covariance(value)
-        self._set_state(np.ascontiguousarray(self.x if not self._single else self.x[None]), P)
+        self._settle()
+        self._set_state(np.ascontiguousarray(self._state[0].T), P)
 
     @property
     def x_prior(self) -> np.ndarray:
         """States after the last ``predict``."""
-        x = self._fast_prior[0].T if self._fast is not None else self._dense_prior[0]
+        self._settle()
+        x = self._prior.get()[0].T
         return x[0] if self._single else x
 
     @property
     def P_prior(self) -> np.ndarray:
         """Covariances after the last ``predict``."""
-        P = self._dense_P("P_prior", self._fast_prior) if self._fast is not None else self._dense_prior[1]
-        return self._present(P, 3)
+        self._settle()
+        return self._public_P("P_prior", self._prior.get())
 
     def _from_last(self, field: str, per_filter_ndim: int) -> np.ndarray:
         if self._last is None:
@@ -715,6 +933,9 @@ class KalmanFilter:
     ) -> None:
         """Advance every filter one step: x⁻ = F x + B u, P⁻ = F P Fᵀ + Q.
 
+        The transition is applied by the next ``update`` in the same pass over memory,
+        or as soon as the prior is read (``x``, ``P``, ``x_prior``, gating).
+
         Parameters
         ----------
         u : optional known input, (n,) or (N, n) when ``B`` is None (added to the
@@ -739,23 +960,22 @@ class KalmanFilter:
             if u_arr.shape not in ((n,), (self.n_filters, n)):
                 raise InvalidInputError(f"u must have shape ({n},) or ({self.n_filters}, {n}); got {u_arr.shape}")
             check_finite("u", u_arr)
-            offset = u_arr
+            # (n, N), the layout of the states
+            offset = np.ascontiguousarray(np.broadcast_to(u_arr, (self.n_filters, n)).T)
         self._last_F = F_arr
-        self._dense_cache = {}  # assembled (N, 4, 4) covariances of the previous step
+        self._settle()  # a predict not applied yet (two predicts in a row)
+        self._dense_cache = {}
         if self._fast is not None:
             parts = self._decoupled_motion(F_arr, Q_arr)
             if parts is not None:
                 dt, q = parts
                 X, C = self._fast
                 if C.shape[0] == 1 and not np.array_equal(q[0], q[1]):
-                    C = np.concatenate([C, C])
-                qb = q[:1] if C.shape[0] == 1 else q
-                self._fast_prior = None  # release the old prior before the new one is allocated
-                self._fast = self._fast_prior = _decoupled.predict(X, C, dt, qb, None if offset is None else offset.T)
+                    self._fast = (X, np.concatenate([C, C]))  # x and y blocks part
+                self._pending = ("cv", (self.dtype.type(dt), np.ascontiguousarray(q), offset))
                 return
             self._to_dense()
-        x, P = self._dense
-        self._dense = self._dense_prior = kalman_predict(x, P, F_arr, Q_arr, offset)
+        self._pending = ("dense", (F_arr, Q_arr, offset))
 
     def update(self, z: object, R: object | None = None, H: object | None = None) -> None:
         """Condition every filter on its measurement.
@@ -772,32 +992,107 @@ class KalmanFilter:
         """
         z_arr = np.atleast_2d(self._array("z", z))
         check_shape("z", z_arr, (self.n_filters, self.dim_z), "(one measurement row per filter, NaN = missing)")
-        finite = np.isfinite(z_arr)  # one pass finds both missing components and infinities
-        all_finite = bool(finite.all())
-        if not all_finite and np.isinf(z_arr).any():
-            raise InvalidInputError("z must not contain infinity (use NaN for a missing measurement)")
         H_arr = self.H
         if H is not None:
             H_arr = self._measurement_matrix(H)
             if H_arr.shape[-2] != self.dim_z:
                 raise InvalidInputError(f"H must keep the measurement dimension {self.dim_z}; got {H_arr.shape}")
         R_arr = self.R if R is None else self._measurement_noise(R)
-        self._dense_cache.pop("P", None)
         if self._fast is not None:
             r = self._decoupled_measurement(H_arr, R_arr)
             if r is not None:
-                X, C = self._fast
-                missing = None if all_finite else ~finite
-                X_new, C_new, stats = _decoupled.update(X, C, z_arr, r, self.joseph, missing)
-                self._fast_prior = (X, stats._C_prior)
-                self._fast = (X_new, C_new)
-                self._last = stats
+                with _kernels.threads_for(self.n_filters):
+                    self._update_decoupled(z_arr, r)
                 return
             self._to_dense()
+        with _kernels.threads_for(self.n_filters):
+            self._update_dense(z_arr, H_arr, R_arr)
+
+    def _update_decoupled(self, z: np.ndarray, r: np.ndarray) -> None:
+        """One compiled pass: the recorded predict (if any) and the update, decoupled form."""
+        N, dtype, take = self.n_filters, self.dtype, self._pool.take
+        X, C = self._fast
+        if self._pending is not None:
+            dt, q, u = self._pending[1]
+        else:  # update alone: the identity transition, exactly (x + 0 v = x, p + 0 = p)
+            dt, q, u = dtype.type(0.0), np.zeros((2, 3), dtype=dtype), None
+        zc = _as_complex(z)
+        if C.shape[0] == 1 and not np.array_equal(r[0], r[1]):
+            C = np.concatenate([C, C])  # the two axes' noises differ: their blocks part
+        if C.ndim == 2 and r.ndim == 1:
+            C_prior, C_post, gains = _kernels.cv_shared_blocks(C, dt, q, r, self.joseph)
+            if not np.all(np.isfinite(C_post)):
+                raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
+            Xo, Yo = take((4, N), dtype), take((2, N), dtype)
+            n_infinite, n_missing = _kernels.cv_step_shared(X, zc, dt, gains, u, Xo, Yo)
+            if n_infinite:
+                raise _infinite_measurement()
+            if n_missing == 0:
+                self._finish_decoupled((Xo, C_post), Yo, X, C, dt, q, u, r)
+                return
+        if C.ndim == 2:
+            C = _per_track(C, N)  # not everyone measured, or per-filter noise: the covariances part for good
+        r2 = r[:, None] if r.ndim == 1 else r
+        Xo, Co, Yo = take((4, N), dtype), take((C.shape[0], 3, N), dtype), take((2, N), dtype)
+        n_infinite, n_partial, n_singular = _kernels.cv_step(X, C, zc, dt, q, r2, u, self.joseph, Xo, Co, Yo)
+        if n_partial and not n_infinite:
+            # a row measured x or y alone: the two axes' histories part, two blocks from now on
+            C, Co = np.concatenate([C, C]), take((2, 3, N), dtype)
+            n_infinite, n_partial, n_singular = _kernels.cv_step(X, C, zc, dt, q, r2, u, self.joseph, Xo, Co, Yo)
+        if n_infinite:
+            raise _infinite_measurement()
+        if n_singular:
+            raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
+        self._finish_decoupled((Xo, Co), Yo, X, C, dt, q, u, r)
+
+    def _finish_decoupled(self, state, Yo, X, C, dt, q, u, r) -> None:
+        if self._pending is not None:
+            prior = _Prior(compute=partial(_cv_prior, X, C, dt, q, u, self._pool.take))
+            self._pending = None
+        else:
+            prior = _Prior((X, C))
+        stats = _decoupled.DecoupledUpdate(lambda: prior.get()[1], Yo, r, None, self.n_filters)
+        self._commit(state, prior, stats, (Yo,))
+
+    def _update_dense(self, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
+        """One compiled pass: the recorded predict (if any) and the update, general form."""
+        N, n, m, dtype, take = self.n_filters, self.dim_x, self.dim_z, self.dtype, self._pool.take
         x, P = self._dense
-        result = kalman_update(x, P, z_arr, H_arr, R_arr, joseph=self.joseph)
-        self._dense = (result.x, result.P)
-        self._last = result
+        predict = self._pending is not None
+        F, Q, u = self._pending[1] if predict else (self.F, self.Q, None)
+        z = _plain(z)
+        u_in = _no_input(x) if u is None else u
+        if P.ndim == 2 and H.ndim == 2 and R.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
+            # shared covariance: one n×n update (the NumPy reference), the states in one pass
+            P_prior = _symmetrize(F @ P @ F.T + Q) if predict else P
+            _, P_post, _, _, gain, _, _ = _gain_and_posterior(np.zeros((1, n), dtype), P_prior, np.zeros((1, m), dtype),
+                                                             H, R, self.joseph)
+            xo, yo = take((n, N), dtype), take((m, N), dtype)
+            n_infinite, n_missing = _kernels.dense_step_shared(x, z, _plain(F), u_in, _plain(H), _plain(gain),
+                                                               predict, xo, yo)
+            if n_infinite:
+                raise _infinite_measurement()
+            if n_missing == 0:
+                self._finish_dense((xo, P_post), yo, x, P, F, Q, u, H, R)
+                return
+        if P.ndim == 2:
+            P = _per_track(P, N)  # the covariances part for good
+        xo, Po, yo = take((n, N), dtype), take((n, n, N), dtype), take((m, N), dtype)
+        n_infinite, n_singular = _kernels.dense_step(x, P, z, _stacked(F), _stacked(Q), _stacked(H), _stacked(R), u_in,
+                                                     predict, self.joseph, xo, Po, yo)
+        if n_infinite:
+            raise _infinite_measurement()
+        if n_singular:
+            raise _not_positive_definite("the innovation covariance S = H P Hᵀ + R")
+        self._finish_dense((xo, Po), yo, x, P, F, Q, u, H, R)
+
+    def _finish_dense(self, state, yo, x, P, F, Q, u, H, R) -> None:
+        if self._pending is not None:
+            prior = _Prior(compute=partial(_dense_prior, x, P, F, Q, u, self._pool.take))
+            self._pending = None
+        else:
+            prior = _Prior((x, P))
+        self._commit(state, prior, _MaskedUpdate(prior, yo, H, R), (yo,))
 
     # -- statistics from the prior, batch runs ---------------------------------------
     def innovation_statistics(
@@ -816,8 +1111,8 @@ class KalmanFilter:
         R_arr = self.R if R is None else self._measurement_noise(R)
         x_prior = self.x_prior if not self._single else self.x_prior[None]
         P_prior = self.P_prior if not self._single else self.P_prior[None]
-        if self._fast is None and self._dense_prior[1].ndim == 2:
-            P_prior = self._dense_prior[1]
+        if self._fast is None and self._prior.get()[1].ndim == 2:
+            P_prior = self._prior.get()[1]
         return innovation_statistics(x_prior, P_prior, z_arr, H_arr, R_arr)
 
     def gating_distance(self, candidates: object, R: object | None = None) -> np.ndarray:

@@ -9,8 +9,10 @@ rank 3.
 Complete data, no weights (the report's algorithm):
 
 1. centre each frame: W = x − t with t_f the mean of frame f's points;
-2. rank-3 truncation W ≈ U′ D′ V′ᵀ (LAPACK, or the randomized solver of
-   :mod:`~kalmansfm.structure.lowrank` with a certified exact subspace for large W);
+2. rank-3 truncation W ≈ U′ D′ V′ᵀ (LAPACK for small W; for large W the
+   certified subspace iteration of :mod:`~kalmansfm.structure._measurement`, which
+   reads the (F, P, 2) array itself — W is never built, the centring happens inside
+   its passes and its last pass also measures the residuals);
 3. affine factors R* = U′ D′^½ and S* = D′^½ V′ᵀ;
 4. metric upgrade: the symmetric A = Q Qᵀ (6 unknowns) from the linear
    least-squares system i*ᵀ A i* = 1, j*ᵀ A j* = 1, i*ᵀ A j* = 0 over all frames;
@@ -49,6 +51,8 @@ __all__ = ["Reconstruction", "factorize", "metric_upgrade"]
 
 # Frames × points up to which the complete-data path uses a full LAPACK SVD.
 _LAPACK_LIMIT = 2_000_000
+# Largest principal angle (rad) to the exact rank-3 subspace certified for large complete input.
+_SUBSPACE_TOL = 1e-9
 # σ₃ / σ₄ below this: W is not convincingly rank 3.
 _RANK_GAP = 2.0
 # Shape thinner than this (smallest / largest spread) is called coplanar.
@@ -73,8 +77,10 @@ class Reconstruction:
         measurement matrix (with missing data: of the matrix completed by the model).
     residual_rms : float — RMS over observed (frame, point) pairs of the 2D distance
         between observed and reprojected positions, in pixels.
-    residuals : (F, P) float — those distances; NaN where not observed.
-    observed : (F, P) bool — which entries were used.
+    residuals : (F, P) float — those distances; NaN where not observed. float32 when
+        ``positions`` was a float32 array, else float64.
+    observed : (F, P) bool — which entries were used (for large complete input, where all
+        were, a read-only all-True view that takes no memory).
     warnings : tuple of str — degeneracies, fallbacks and dropped frames/points.
     method : ``"svd"`` (closed form, complete unweighted data) or ``"als"``.
     iterations : ALS iterations run (0 for ``"svd"``).
@@ -121,7 +127,13 @@ def factorize(
     Parameters
     ----------
     positions : (F, P, 2) float — x = column, y = row of point p in frame f; NaN where the
-        point is not observed. Needs F ≥ 3 frames and P ≥ 4 points.
+        point is not observed. Needs F ≥ 3 frames and P ≥ 4 points. Only read, never
+        modified. Large complete input without weights (2F·P > 2·10⁶) is used where it
+        lies: a C-ordered float64 or float32 array is neither copied nor converted (float32
+        stays float32 in memory; the arithmetic is float64), and no 2F × P matrix is made,
+        so the peak memory beyond the input is the (F, P) ``residuals`` of the result (0.5×
+        the input in float64, plus about 3 % working arrays). Other dtypes or layouts are converted
+        once. No ``copy=False`` option is needed: there is no copy to avoid.
     weights : (F, P) or (F, P, 2) float ≥ 0, optional — per-entry least-squares weights,
         typically 1 / σ² from the tracker's posterior standard deviations. A zero weight
         ignores the entry. Without weights every observation counts equally.
@@ -144,6 +156,10 @@ def factorize(
 
     The closed form (no NaN, no weights) is the report's algorithm; otherwise the fit is
     weighted alternating least squares over the observed entries (see the module notes).
+    For large complete input the rank-3 subspace is certified to 1e-9 rad (Davis–Kahan
+    bound) and the residuals come from the same pass over ``positions`` (the reprojection
+    M S + t equals the rank-3 part of W plus the centroids). The first such call in a
+    new environment compiles three numba kernels (a few seconds, cached on disk).
     Degenerate input is flagged in ``warnings`` rather than raised: a rank-2 W (coplanar
     points, or no rotation out of the image plane), a flat shape, a metric system too
     ill-conditioned to fix depth, and a non-positive-definite A (replaced by the nearest
@@ -173,45 +189,16 @@ def factorize(
     max_iterations = check_count("max_iterations", max_iterations, 1)
     if not (np.isfinite(tol) and tol >= 0):
         raise InvalidInputError(f"tol must be a finite number >= 0; got {tol!r}")
-    x, w, observed = _validate(positions, weights)
-    frames, points = x.shape[:2]
-    if w is not None:
-        observed &= (w > 0).any(axis=2)
     notes: list[str] = []
-    use_f, use_p = _usable(observed, notes)
-    everything = bool(use_f.all() and use_p.all())
-
-    def subset(a: np.ndarray) -> np.ndarray:
-        return a if everything else a[np.ix_(use_f, use_p)]
-
-    xs, obs = subset(x), subset(observed)
-    complete = bool(obs.all())
-    uniform = w is None or bool(np.ptp(subset(w)[obs]) == 0.0)
-    if complete and uniform:
-        motion_aff, shape_aff, translation, sv = _closed_form(xs, rng)
-        method, iterations = "svd", 0
-        f_ok, p_ok = np.ones(int(use_f.sum()), bool), np.ones(int(use_p.sum()), bool)
-    else:
-        ws = np.ones_like(xs) if w is None else subset(w)
-        motion_aff, shape_aff, translation, iterations, f_ok, p_ok = _weighted_als(
-            xs, ws, obs, max_iterations, tol, notes
-        )
-        method = "als"
-        sv = _completed_singular_values(xs, obs, motion_aff, shape_aff, translation, f_ok, p_ok, rng)
-        if not f_ok.all():
-            notes.append(f"{int((~f_ok).sum())} frame(s) not linked to the reconstructed points: left NaN")
-        if not p_ok.all():
-            notes.append(f"{int((~p_ok).sum())} point(s) not linked to the reconstructed frames: left NaN")
-        if f_ok.sum() < 3 or p_ok.sum() < 4:
-            raise NotEnoughDataError(
-                f"factorize needs >= 3 frames and >= 4 points linked by observations; "
-                f"reached {int(f_ok.sum())} frames and {int(p_ok.sum())} points"
-            )
-    if not sv[0] > 0:
+    fit = _streamed_closed_form(positions, weights, rng, notes)
+    if fit is None:
+        fit = _general_fit(positions, weights, max_iterations, tol, rng, notes)
+    f_ok, p_ok, motion_aff, shape_aff = fit.f_ok, fit.p_ok, fit.motion, fit.shape
+    if not fit.singular_values[0] > 0:
         raise NotEnoughDataError(
             "factorize needs points that spread out; in every frame all observed points are at one place"
         )
-    _check_rank(sv, motion_aff[f_ok], shape_aff[p_ok], notes)
+    _check_rank(fit.singular_values, motion_aff[f_ok], shape_aff[p_ok], notes)
 
     rows = motion_aff[f_ok].reshape(-1, 3)
     a_matrix, q = metric_upgrade(rows, notes)
@@ -228,18 +215,31 @@ def factorize(
     # Centre the shape; the shift goes into the translation: x = M (S − c) + (t + M c).
     centroid = shape[p_ok].mean(axis=0)
     shape = shape - centroid
-    translation = translation + motion @ centroid
+    translation = fit.translation + motion @ centroid
     _check_shape(shape[p_ok], notes)
 
+    frames, points = fit.positions.shape[:2]
     full_motion = np.full((frames, 2, 3), np.nan)
     full_translation = np.full((frames, 2), np.nan)
     full_points = np.full((points, 3), np.nan)
-    f_index, p_index = np.flatnonzero(use_f)[f_ok], np.flatnonzero(use_p)[p_ok]
+    f_index, p_index = np.flatnonzero(fit.use_f)[f_ok], np.flatnonzero(fit.use_p)[p_ok]
     full_motion[f_index] = motion[f_ok]
     full_translation[f_index] = translation[f_ok]
     full_points[p_index] = shape[p_ok]
 
-    residuals, used, residual_rms = _reprojection_residuals(x, observed, full_motion, full_points, full_translation)
+    if fit.residuals is None:
+        residuals, used, residual_rms = _reprojection_residuals(
+            fit.positions, fit.observed, full_motion, full_points, full_translation
+        )
+        residuals = residuals.astype(fit.residual_dtype, copy=False)
+    else:
+        # Complete data: the reprojection M S + t is the rank-3 part of W plus the centroids
+        # (the upgrade and the gauge only re-parametrise it), so the distances measured in
+        # the SVD's last pass are the reprojection residuals.
+        # every entry was used: a read-only all-True view rather than another (F, P) array
+        residuals, used = fit.residuals, np.broadcast_to(np.True_, (frames, points))
+        residual_rms = float(np.sqrt(fit.residual_sum / residuals.size))
+    method, iterations, sv = fit.method, fit.iterations, fit.singular_values
     return Reconstruction(
         points=full_points,
         motion=full_motion,
@@ -252,6 +252,110 @@ def factorize(
         method=method,
         iterations=iterations,
         metric_matrix=a_matrix,
+    )
+
+
+@dataclass(frozen=True)
+class _AffineFit:
+    """Affine factors R* (``motion``), S* (``shape``) and ``translation`` on the usable frames
+    (``use_f``) × points (``use_p``) of ``positions``, of which ``f_ok`` / ``p_ok`` were reached.
+    ``residuals`` / ``residual_sum`` are set when the fit already measured them (complete data)."""
+
+    positions: np.ndarray
+    observed: np.ndarray | None
+    use_f: np.ndarray
+    use_p: np.ndarray
+    f_ok: np.ndarray
+    p_ok: np.ndarray
+    motion: np.ndarray
+    shape: np.ndarray
+    translation: np.ndarray
+    singular_values: np.ndarray
+    method: str
+    iterations: int
+    residual_dtype: np.dtype
+    residuals: np.ndarray | None = None
+    residual_sum: float = 0.0
+
+
+def _streamed_closed_form(positions: object, weights: object, rng: object, notes: list[str]) -> _AffineFit | None:
+    """The closed form straight from a large complete (F, P, 2) array, or None (general path).
+
+    W is never built: :func:`~kalmansfm.structure._measurement.streamed_rank` reads
+    ``positions`` three times (a float32 array stays float32 in memory; the sums are
+    float64). Returns None for small input, weights, or as soon as a NaN or an infinity
+    is met.
+    """
+    if weights is not None or not isinstance(positions, np.ndarray) or positions.ndim != 3:
+        return None
+    if positions.dtype.kind not in "fiu":  # others (and their errors) are the general path's
+        return None
+    frames, points, coordinates = positions.shape
+    if coordinates != 2 or frames < 3 or points < 4 or 2 * frames * points <= _LAPACK_LIMIT:
+        return None
+    # Imported here: numba (≈ 0.2 s to import) is only needed once an input is this large.
+    from ._measurement import streamed_rank
+
+    dtype = positions.dtype if positions.dtype in (np.float32, np.float64) else np.dtype(np.float64)
+    x = np.ascontiguousarray(positions, dtype=dtype)  # no copy for a C-ordered float32/float64 array
+    fit = streamed_rank(x, 3, tol=_SUBSPACE_TOL, max_passes=12, rng=np.random.default_rng(rng))
+    if fit is None:
+        return None
+    if fit.angle_bound > _SUBSPACE_TOL and not fit.undetermined:
+        notes.append(
+            f"rank-3 subspace certified only to {fit.angle_bound:.2g} rad after {fit.passes} passes "
+            f"(target {_SUBSPACE_TOL:g}; σ3 and σ4 too close)"
+        )
+    root = np.sqrt(fit.s)
+    every_f, every_p = np.ones(frames, bool), np.ones(points, bool)
+    return _AffineFit(
+        positions=x, observed=None, use_f=every_f, use_p=every_p, f_ok=every_f, p_ok=every_p,
+        motion=(fit.u * root).reshape(frames, 2, 3), shape=fit.vt.T * root, translation=fit.centroids,
+        singular_values=np.concatenate([fit.s, fit.extra_singular_values]), method="svd", iterations=0,
+        residual_dtype=dtype, residuals=fit.residuals, residual_sum=fit.residual_sum,
+    )
+
+
+def _general_fit(
+    positions: object, weights: object, max_iterations: int, tol: float, rng: object, notes: list[str]
+) -> _AffineFit:
+    """Validation, usable frames and points, then the closed form or weighted ALS."""
+    residual_dtype = np.dtype(np.float32 if getattr(positions, "dtype", None) == np.float32 else np.float64)
+    x, w, observed = _validate(positions, weights)
+    if w is not None:
+        observed &= (w > 0).any(axis=2)
+    use_f, use_p = _usable(observed, notes)
+    everything = bool(use_f.all() and use_p.all())
+
+    def subset(a: np.ndarray) -> np.ndarray:
+        return a if everything else a[np.ix_(use_f, use_p)]
+
+    xs, obs = subset(x), subset(observed)
+    complete = bool(obs.all())
+    uniform = w is None or bool(np.ptp(subset(w)[obs]) == 0.0)
+    if complete and uniform:
+        motion_aff, shape_aff, translation, sv = _closed_form(xs, rng)
+        method, iterations = "svd", 0
+        f_ok, p_ok = np.ones(int(use_f.sum()), bool), np.ones(int(use_p.sum()), bool)
+    else:
+        motion_aff, shape_aff, translation, iterations, f_ok, p_ok = _weighted_als(
+            xs, None if w is None else subset(w), obs, max_iterations, tol, notes
+        )
+        method = "als"
+        sv = _completed_singular_values(xs, obs, motion_aff, shape_aff, translation, f_ok, p_ok, rng)
+        if not f_ok.all():
+            notes.append(f"{int((~f_ok).sum())} frame(s) not linked to the reconstructed points: left NaN")
+        if not p_ok.all():
+            notes.append(f"{int((~p_ok).sum())} point(s) not linked to the reconstructed frames: left NaN")
+        if f_ok.sum() < 3 or p_ok.sum() < 4:
+            raise NotEnoughDataError(
+                f"factorize needs >= 3 frames and >= 4 points linked by observations; "
+                f"reached {int(f_ok.sum())} frames and {int(p_ok.sum())} points"
+            )
+    return _AffineFit(
+        positions=x, observed=observed, use_f=use_f, use_p=use_p, f_ok=f_ok, p_ok=p_ok, motion=motion_aff,
+        shape=shape_aff, translation=translation, singular_values=sv, method=method, iterations=iterations,
+        residual_dtype=residual_dtype,
     )
 
 
@@ -420,23 +524,41 @@ def _centred_measurement_matrix(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _weighted_als(
-    x: np.ndarray, w: np.ndarray, observed: np.ndarray, max_iterations: int, tol: float, notes: list[str]
+    x: np.ndarray, w: np.ndarray | None, observed: np.ndarray, max_iterations: int, tol: float, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
-    frames, points = observed.shape
-    # Work in the (2F, P) layout of W: row 2f is x of frame f, row 2f+1 its y.
-    values = np.where(observed[:, :, None], x, 0.0).transpose(0, 2, 1).reshape(2 * frames, points)
-    weight = np.where(observed[:, :, None], w, 0.0).transpose(0, 2, 1).reshape(2 * frames, points)
-    weighted_values = weight * values
+    """Weighted ALS over the observed entries (``w`` None: unit weights).
 
-    motion, shape, translation, f_ok, p_ok = _initialise(values, observed)
+    Works in the (2F, P) layout of W (row 2f is x of frame f, row 2f+1 its y) with two
+    full-size arrays (three with weights): the observed values (0 where unobserved) and the
+    weights; everything else is computed a block of rows at a time or as a thin product.
+    """
+    frames, points = observed.shape
+    values = _rows_where(x, observed)
+    unit = _rows_where(None, observed)  # 1 where observed: the initialisation's weights
+    motion, shape, translation, f_ok, p_ok = _initialise(values, unit, observed)
+    if w is None:
+        weight, weighted_values = unit, values  # 1 · v = v exactly, and v = 0 where w = 0
+    else:
+        weight = _rows_where(w, observed)
+        weighted_values = weight * values
+    # Frames and points the initialisation did not reach take no part (in place).
     known_rows = np.repeat(f_ok, 2)
-    weight = weight * known_rows[:, None] * p_ok[None, :]
-    weighted_values = weighted_values * known_rows[:, None] * p_ok[None, :]
-    total = float(np.sum(weighted_values * values))
+    for array in (weight, weighted_values):
+        array[~known_rows] = 0.0
+        array[:, ~p_ok] = 0.0
+    total = float(np.einsum("ij,ij->", weighted_values, values))
+    blocks = _frame_blocks(2 * frames, points)
 
     def cost(motion: np.ndarray, shape: np.ndarray, translation: np.ndarray) -> float:
-        prediction = motion @ shape.T + translation[:, None]
-        return float(np.sum(weight * (values - prediction) ** 2))
+        # Σ w (v − m·s − t)², a block of rows at a time
+        result = 0.0
+        for rows in blocks:
+            difference = motion[rows] @ shape.T
+            difference += translation[rows, None]
+            difference -= values[rows]
+            np.square(difference, out=difference)
+            result += float(np.einsum("ij,ij->", weight[rows], difference))
+        return result
 
     previous = cost(motion, shape, translation)
     iterations = 0
@@ -453,6 +575,22 @@ def _weighted_als(
     return motion.reshape(frames, 2, 3), shape, translation.reshape(frames, 2), iterations, f_ok, p_ok
 
 
+def _rows_where(a: np.ndarray | None, observed: np.ndarray) -> np.ndarray:
+    """(2F, P) float64: a[f, p, c] at row 2f + c (1 when ``a`` is None) where observed, else 0.
+
+    Built a block of frames at a time, so the only full-size array is the result.
+    """
+    frames, points = observed.shape
+    out = np.zeros((frames, 2, points))
+    for block in _frame_blocks(frames, points):
+        seen = observed[block][:, None, :]
+        if a is None:
+            np.copyto(out[block], seen)
+        else:
+            np.copyto(out[block], a[block].transpose(0, 2, 1), where=seen)
+    return out.reshape(2 * frames, points)
+
+
 def _solve_points(weight: np.ndarray, weighted_values: np.ndarray, motion: np.ndarray, translation: np.ndarray,
                   fallback: np.ndarray) -> np.ndarray:
     """Each S_p = argmin Σ_rows w (x − m·S_p − t)²: a batched 3 × 3 system per point."""
@@ -463,9 +601,14 @@ def _solve_points(weight: np.ndarray, weighted_values: np.ndarray, motion: np.nd
 
 
 def _solve_frames(weight: np.ndarray, weighted_values: np.ndarray, shape: np.ndarray, motion: np.ndarray,
-                  translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each image row [m | t] = argmin Σ_p w (x − m·S_p − t)²: a batched 4 × 4 system per row."""
+                  translation: np.ndarray, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each image row [m | t] = argmin Σ_p w (x − m·S_p − t)²: a batched 4 × 4 system per row.
+
+    ``columns`` (P,) bool, optional: only these points count (the others' [S_p 1] rows are zeroed).
+    """
     homogeneous = np.hstack([shape, np.ones((shape.shape[0], 1))])
+    if columns is not None:
+        homogeneous[~columns] = 0.0
     outer = (homogeneous[:, :, None] * homogeneous[:, None, :]).reshape(-1, 16)
     normal = (weight @ outer).reshape(-1, 4, 4)
     rhs = weighted_values @ homogeneous
@@ -486,7 +629,7 @@ def _batched_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) ->
     return out
 
 
-def _initialise(values: np.ndarray, observed: np.ndarray):
+def _initialise(values: np.ndarray, unit: np.ndarray, observed: np.ndarray):
     """Affine factors from the largest complete block, extended to all reachable frames and points."""
     frames, points = observed.shape
     rows, cols = _complete_block(observed)
@@ -514,24 +657,22 @@ def _initialise(values: np.ndarray, observed: np.ndarray):
         u, s, vt = np.linalg.svd(filled, full_matrices=False)
         root = np.sqrt(s[:3])
         return u[:, :3] * root, vt[:3].T * root, centroid, observed.sum(axis=1) >= 4, observed.sum(axis=0) >= 2
-    weight = np.repeat(observed, 2, axis=0).astype(np.float64)
-    weighted_values = weight * values
+    # Unit weights; values are 0 where unobserved, so they are also the weighted values.
+    # Frames (points) not yet known have zero motion (shape) rows and so add nothing to a
+    # point's (frame's) normal equations; each solve covers all points (rows) and only the
+    # new ones are kept, so no masked copy of the full-size arrays is made.
     while True:
         seen_by_known = (observed & f_ok[:, None]).sum(axis=0)
         new_p = ~p_ok & (seen_by_known >= 2)
         if new_p.any():
-            w_known = weight * np.repeat(f_ok, 2)[:, None]
-            solved = _solve_points(w_known[:, new_p], weighted_values[:, new_p] * np.repeat(f_ok, 2)[:, None],
-                                   motion, translation, shape[new_p])
-            shape[new_p] = solved
+            shape[new_p] = _solve_points(unit, values, motion, translation, shape)[new_p]
             p_ok |= new_p
         seen_known = (observed & p_ok[None, :]).sum(axis=1)
         new_f = ~f_ok & (seen_known >= 4)
         if new_f.any():
             rows_new = np.repeat(new_f, 2)
-            m, t = _solve_frames(weight[rows_new] * p_ok, weighted_values[rows_new] * p_ok, shape,
-                                 motion[rows_new], translation[rows_new])
-            motion[rows_new], translation[rows_new] = m, t
+            m, t = _solve_frames(unit, values, shape, motion, translation, columns=p_ok)
+            motion[rows_new], translation[rows_new] = m[rows_new], t[rows_new]
             f_ok |= new_f
         if not new_p.any() and not new_f.any():
             break

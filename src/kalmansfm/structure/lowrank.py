@@ -186,26 +186,72 @@ def _randomized(
         zt = transposed_times(u)  # Z = Wᵀ U
         y = times(zt)  # Y = W Z = A U with A = W Wᵀ
         passes += 2
-        # Rayleigh–Ritz on span(U): the l × l matrix Zᵀ Z = Uᵀ A U = G Λ Gᵀ (Λ = Ritz σ²)
-        lam, g = np.linalg.eigh(zt @ zt.T)
-        lam, g = np.maximum(lam[::-1], 0.0), g[:, ::-1]
-        # Davis–Kahan residual of the leading Ritz pairs of A: R = A U G - U G Λ
-        residual = np.linalg.norm(y @ g[:, :k] - (u @ g[:, :k]) * lam[:k], 2)
-        # σₖ₊₁² ≤ ‖W‖_F² − Σᵢ≤ₖ σ̂ᵢ² (Ritz values are lower bounds), with room for rounding
-        upper_next = frobenius - lam[:k].sum() + 1e-12 * frobenius
-        certified = upper_next < lam[k - 1]
-        next_lam = upper_next if certified else (lam[k] if width > k else 0.0)
-        gap = lam[k - 1] - next_lam
-        bound = float(np.pi / 2) if gap <= 0 else float(np.arcsin(min(1.0, residual / gap)))
-        # σₖ at rounding level: the k-th direction is not determined by the matrix; iterating cannot help.
-        undetermined = lam[k - 1] <= (64 * np.finfo(float).eps) ** 2 * lam[0]
-        if bound <= tol or undetermined or passes + 2 > max_passes:
+        ritz = ritz_certificate(zt, y, u, k, frobenius)
+        if ritz.bound <= tol or ritz.undetermined or passes + 2 > max_passes:
             break
         u, _ = np.linalg.qr(y)
     # The returned triplets from the SVD of Zᵀ = Uᵀ W = G Σ Bᵀ (no squaring): Wᵀ (U G) = B Σ.
+    s = ritz.singular_values
+    return TruncatedSVD(u @ ritz.vectors[:, :k], s[:k], ritz.right[:k], s[k:], "randomized", passes,
+                        ritz.bound, ritz.certified)
+
+
+@dataclass(frozen=True)
+class RitzCertificate:
+    """Rayleigh–Ritz pairs of A = W Wᵀ on span(U) and the Davis–Kahan bound of their k leading ones.
+
+    singular_values : (ℓ,) Ritz estimates σ̂ᵢ of the singular values (descending; σ̂ᵢ² are the Ritz
+    values of A); vectors : (ℓ, ℓ) their coordinates G in the basis U; right : (ℓ, n) Bᵀ, with
+    Uᵀ W = G diag(σ̂) Bᵀ; bound : bound (radians) on the largest principal angle between span(U Gₖ)
+    and the exact leading k-dimensional left subspace; certified : the gap used a rigorous upper
+    bound of σₖ₊₁²; undetermined : σₖ at rounding level (no direction to find).
+    """
+
+    singular_values: np.ndarray
+    vectors: np.ndarray
+    right: np.ndarray
+    bound: float
+    certified: bool
+    undetermined: bool
+
+
+def ritz_certificate(
+    zt: np.ndarray,
+    y: np.ndarray,
+    u: np.ndarray | None,
+    k: int,
+    frobenius: float,
+    *,
+    upper_next: float | None = None,
+    fallback_next: float = 0.0,
+) -> RitzCertificate:
+    """Rayleigh–Ritz on span(U) from Zᵀ = Uᵀ W (ℓ, n) and the Davis–Kahan bound.
+
+    ``y`` is A U (then ``u`` is U), or, with ``u`` None, already the residual A U − U (Uᵀ A U).
+    σₖ₊₁² is bounded by ``upper_next`` when given (e.g. ‖W − U Uᵀ W‖²_F), else by
+    ‖W‖²_F − Σᵢ≤ₖ λᵢ (Ritz values never exceed the exact ones); when that bound is not below
+    λₖ, the Ritz estimate λₖ₊₁ (or ``fallback_next`` if ℓ = k) is used and the bound is only an
+    estimate.
+    """
+    # Zᵀ = Uᵀ W = G Σ Bᵀ, so Uᵀ A U = G Σ² Gᵀ: Ritz values λ = σ², vectors U G. (The SVD of Zᵀ,
+    # not the eigen-decomposition of Zᵀ Z, resolves a σ far below σ₁: no squaring.)
     g, s, bt = np.linalg.svd(zt, full_matrices=False)
-    ritz_u, vt = u @ g[:, :k], bt[:k]
-    return TruncatedSVD(ritz_u, s[:k], vt, s[k:], "randomized", passes, bound, bool(certified))
+    lam = s**2
+    # Davis–Kahan residual of the leading Ritz pairs of A: R = A U G - U G Λ
+    if u is None:
+        residual = np.linalg.norm(y @ g[:, :k], 2)
+    else:
+        residual = np.linalg.norm(y @ g[:, :k] - (u @ g[:, :k]) * lam[:k], 2)
+    # σₖ₊₁² ≤ ‖W‖_F² − Σᵢ≤ₖ σ̂ᵢ² (Ritz values are lower bounds), with room for rounding
+    upper = frobenius - lam[:k].sum() if upper_next is None else upper_next
+    upper += 1e-12 * frobenius
+    certified = bool(upper < lam[k - 1])
+    next_value = upper if certified else (lam[k] if lam.size > k else fallback_next)
+    gap = lam[k - 1] - next_value
+    bound = float(np.pi / 2) if gap <= 0 else float(np.arcsin(min(1.0, residual / gap)))
+    # σₖ at rounding level: the k-th direction is not determined by the matrix; iterating cannot help.
+    undetermined = bool(lam[k - 1] <= (64 * np.finfo(float).eps) ** 2 * lam[0])
+    return RitzCertificate(s, g, bt, bound, certified, undetermined)
 
 
 def _centred_row_norms(w: np.ndarray, offsets: np.ndarray, block_rows: int = 16) -> np.ndarray:

@@ -1,0 +1,164 @@
+"""The streamed rank-3 solver on the tracks array: kernels vs NumPy, answers vs LAPACK and factorize."""
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from kalmansfm import InvalidInputError
+from kalmansfm.structure import _measurement, factorization, factorize, subspace_angle
+
+from factorization_scenes import orthographic_scene
+
+
+def tracks(rng, frames=30, points=700, noise_px=1.0, dtype=np.float64):
+    positions, shape, _ = orthographic_scene(rng, frames=frames, points=points, noise_px=noise_px)
+    return positions.astype(dtype), shape
+
+
+def centred_w(positions):
+    frames, points = positions.shape[:2]
+    w = positions.astype(np.float64).transpose(0, 2, 1).reshape(2 * frames, points)
+    return w - w.mean(axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_compiled_kernels_equal_their_numpy_references(dtype):
+    rng = np.random.default_rng(0)
+    x, _ = tracks(rng, frames=7, points=101, dtype=dtype)  # 101 points: a partial last block
+    frames, points = x.shape[:2]
+    centroids = x.astype(np.float64).mean(axis=1)
+    shift = centroids + rng.normal(size=centroids.shape)
+    start = rng.normal(size=(4, points))
+    u = np.linalg.qr(rng.normal(size=(2 * frames, 4)))[0].reshape(frames, 2, 4)
+    u3 = np.ascontiguousarray(u[:, :, :3])
+    xf = x.astype(np.float64)
+
+    for got, want in zip(_measurement._first_pass(x, shift, start), _measurement._first_pass_reference(xf, shift, start)):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
+    for got, want in zip(_measurement._round_trip(x, centroids, u, 16), _measurement._round_trip_reference(xf, centroids, u)):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
+    distances = np.empty((frames, points), dtype=dtype)
+    z, ry, total = _measurement._projection_pass(x, centroids, u3, 16, distances)
+    z_ref, ry_ref, total_ref, distances_ref = _measurement._projection_pass_reference(xf, centroids, u3)
+    np.testing.assert_allclose(z, z_ref, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(ry, ry_ref, rtol=1e-9, atol=1e-6)
+    assert total == pytest.approx(total_ref, rel=1e-12)
+    np.testing.assert_allclose(distances, distances_ref, rtol=1e-6 if dtype == np.float32 else 1e-12)
+
+
+def test_streamed_rank_equals_lapack_and_its_residual_equals_the_direct_one():
+    rng = np.random.default_rng(1)
+    x, _ = tracks(rng, noise_px=1.0)
+    fit = _measurement.streamed_rank(x, 3, tol=1e-9, max_passes=21, rng=np.random.default_rng(0))
+    w = centred_w(x)
+    exact = np.linalg.svd(w, full_matrices=False)
+    np.testing.assert_allclose(fit.centroids, x.mean(axis=1), rtol=1e-14)
+    np.testing.assert_allclose(fit.s, exact.S[:3], rtol=1e-12)
+    angle = subspace_angle(fit.u, exact.U[:, :3])
+    assert fit.certified and angle <= max(fit.angle_bound, 1e-13) and fit.angle_bound <= 1e-9
+    assert subspace_angle(fit.vt.T, exact.Vh[:3].T) < 1e-9
+    # the residuals of the rank-3 part, directly
+    direct = w - (exact.U[:, :3] * exact.S[:3]) @ exact.Vh[:3]
+    frames, points = x.shape[:2]
+    np.testing.assert_allclose(fit.residuals, np.sqrt((direct.reshape(frames, 2, points) ** 2).sum(axis=1)), rtol=1e-9)
+    assert fit.residual_sum == pytest.approx(np.sum(direct**2), rel=1e-12)
+    # ‖W‖²_F − Σσᵢ² agrees too, to the precision its cancellation leaves (‖W‖²_F / residual ≈ 10³ here)
+    assert fit.residual_sum == pytest.approx(np.sum(w**2) - np.sum(exact.S[:3] ** 2), rel=1e-9)
+
+
+def test_streamed_rank_stops_on_an_exactly_rank_two_matrix():
+    rng = np.random.default_rng(2)
+    flat = rng.normal(size=(400, 3)) * [40.0, 30.0, 0.0]
+    rotations = np.linalg.qr(rng.normal(size=(12, 3, 3)))[0][:, :2]
+    x = np.einsum("fij,pj->fpi", rotations, flat) + 100.0
+    fit = _measurement.streamed_rank(x, 3, tol=1e-9, max_passes=21, rng=np.random.default_rng(0))
+    assert fit.undetermined and fit.passes <= 4
+    np.testing.assert_allclose(fit.s[:2], np.linalg.svd(centred_w(x), compute_uv=False)[:2], rtol=1e-12)
+    assert fit.s[2] < 1e-9 * fit.s[0]
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_streamed_rank_declines_nan_and_inf(bad, monkeypatch):
+    x, _ = tracks(np.random.default_rng(3))
+    x[5, 7, 1] = bad
+    # found by the first pass's sums (the compiled kernel) even where the column sample misses it
+    sums, squares, _ = _measurement._first_pass(x, np.zeros((x.shape[0], 2)), np.zeros((4, x.shape[1])))
+    assert not np.isfinite(sums[5, 1]) and not np.isfinite(squares[5, 1]) and np.isfinite(sums[4]).all()
+    monkeypatch.setattr(_measurement, "_SAMPLE_POINTS", 8)
+    assert _measurement.streamed_rank(x, 3, tol=1e-9, max_passes=21, rng=np.random.default_rng(0)) is None
+
+
+@pytest.fixture
+def stream_everything(monkeypatch):
+    """Route every complete unweighted input through the streamed path (normally 2F·P > 2·10⁶)."""
+    monkeypatch.setattr(factorization, "_LAPACK_LIMIT", 0)
+
+
+def test_factorize_streamed_equals_the_lapack_closed_form(stream_everything):
+    x, shape = tracks(np.random.default_rng(4), noise_px=0.5)
+    streamed = factorize(x)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(factorization, "_LAPACK_LIMIT", 10**12)
+        lapack = factorize(x)
+    assert streamed.method == lapack.method == "svd" and streamed.warnings == lapack.warnings == ()
+    if np.sign(streamed.points[0, 2]) != np.sign(lapack.points[0, 2]):
+        streamed = streamed.mirrored()  # the singular vectors' signs pick one of the mirror pair
+    for name in ("points", "motion", "translation", "residuals"):
+        np.testing.assert_allclose(getattr(streamed, name), getattr(lapack, name), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(streamed.singular_values[:3], lapack.singular_values[:3], rtol=1e-12)
+    assert streamed.residual_rms == pytest.approx(lapack.residual_rms, rel=1e-12)
+    assert streamed.observed.all() and streamed.observed.shape == x.shape[:2] and streamed.observed.dtype == bool
+    # the residuals taken from the SVD's last pass are the reprojection distances
+    direct = np.sqrt(((streamed.reprojected() - x) ** 2).sum(axis=2))
+    np.testing.assert_allclose(streamed.residuals, direct, rtol=1e-9, atol=1e-10)
+
+
+def test_factorize_streamed_float32_keeps_float32_residuals(stream_everything):
+    x, _ = tracks(np.random.default_rng(5), noise_px=0.5)
+    single = x.astype(np.float32)
+    rec = factorize(single)
+    exact = factorize(single.astype(np.float64))  # the same float32 values, streamed as float64
+    assert rec.residuals.dtype == np.float32 and rec.points.dtype == np.float64
+    np.testing.assert_allclose(rec.points, exact.points, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(rec.residuals, exact.residuals, rtol=1e-6, atol=1e-6)
+
+
+def test_factorize_streamed_reads_any_layout(stream_everything):
+    x, _ = tracks(np.random.default_rng(6))
+    fortran = np.asfortranarray(x)
+    np.testing.assert_allclose(factorize(fortran).points, factorize(x).points, rtol=1e-12, atol=1e-12)
+
+
+def test_factorize_large_input_with_holes_or_inf_takes_the_general_path(stream_everything):
+    x, _ = tracks(np.random.default_rng(7), frames=10, points=60)
+    holes = x.copy()
+    holes[2, 3] = np.nan
+    assert factorize(holes).method == "als"
+    holes[2, 3] = np.inf
+    with pytest.raises(InvalidInputError, match="finite"):
+        factorize(holes)
+
+
+def test_factorize_streamed_allocates_little_besides_its_outputs(stream_everything):
+    x, _ = tracks(np.random.default_rng(8), frames=200, points=10_000)
+    factorize(x[:, :100])  # compile outside the measurement
+    tracemalloc.start()
+    try:
+        rec = factorize(x)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # the (F, P) residuals are 0.5 of the (F, P, 2) input; a (2F, P) copy of W would be 1.0 more
+    assert rec.method == "svd" and peak - rec.residuals.nbytes < 0.1 * x.nbytes
+
+
+def test_factorize_streamed_says_when_the_subspace_is_not_certified(stream_everything):
+    # a nearly flat object: σ3 barely above the noise (σ3/σ4 ≈ 1.3), so the iteration crawls
+    rng = np.random.default_rng(10)
+    shape = rng.normal(size=(2000, 3)) * [40.0, 30.0, 0.15]
+    rotations = np.linalg.qr(rng.normal(size=(100, 3, 3)))[0][:, :2]
+    x = shape @ rotations.transpose(0, 2, 1) + 100.0 + rng.normal(size=(100, 2000, 2))
+    rec = factorize(x)
+    assert any("not clearly rank 3" in w for w in rec.warnings)
+    assert any("rank-3 subspace certified only to" in w for w in rec.warnings)
