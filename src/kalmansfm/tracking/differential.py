@@ -1,0 +1,641 @@
+"""Differential measurement: Lucas–Kanade started from the Kalman prediction, checked, with its own noise.
+
+One call of :func:`measure_differential` measures every track in the current
+frame at once:
+
+1. **Flow from the prediction.**  OpenCV's pyramidal Lucas–Kanade
+   (``calcOpticalFlowPyrLK`` with ``OPTFLOW_USE_INITIAL_FLOW``) follows each
+   track from its previous position, starting at the predicted position p⁻.
+   The pyramid depth is chosen per track from the predicted position covariance
+   Σ⁻: the gate reaches c·√λmax(Σ⁻) from p⁻, and a level-L pyramid captures about
+   ``capture_px``·2^L pixels (measured, see ``docs/tracking.md``), so a confident
+   prediction runs on fewer levels.  Tracks are grouped by depth, one OpenCV call
+   per group.
+2. **Forward–backward check.**  The same flow run from the current frame back to
+   the previous one, started at the match minus the predicted motion, must land
+   within ``forward_backward_px`` of where the track was.
+3. **Gate.**  The match must lie in the gate (z - p⁻)ᵀ (Σ⁻)⁻¹ (z - p⁻) ≤ c².
+4. **Anchor and appearance.**  Each track carries an *anchor*: a template cut at
+   its first appearance (or at a later keyframe chosen by the caller).  The anchor
+   is aligned to the frame from the match by Gauss–Newton with gain and offset
+   (:func:`align_templates`).  Where the anchor matches well (NCC ≥ ``anchor_ncc``)
+   its position is the measurement, so the track does not drift with the
+   frame-to-frame chaining; where it matches only acceptably the flow's match is
+   kept; below ``min_ncc`` the measurement is refused.
+5. **Noise from the refinement.**  The measurement noise of an anchored match is
+   R = σ² (Σ ∇T ∇Tᵀ)⁻¹ — the residual variance of the alignment times the inverse
+   of the anchor's structure tensor — plus the anchor's own covariance (zero for a
+   first appearance, the track's covariance when a keyframe was cut).  A chained
+   match inherits the previous position's covariance instead, because its error
+   is that of the previous position plus the flow's.
+
+Coasting tracks (no measured position in the previous frame) are not followed by
+flow, which would follow whatever hid them: their anchor is searched in the gate
+with normalised cross-correlation (:func:`~kalmansfm.tracking.matching.match_templates`),
+then aligned and checked like the others.
+
+Coordinates: x = column, y = row, pixel centres at integer coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from functools import cached_property
+
+import cv2
+import numpy as np
+
+from ..errors import InvalidInputError
+from .matching import PreparedFrame, match_templates, prepare_frame, sample_patches
+
+__all__ = [
+    "ACCEPTED",
+    "REJECTION_NAMES",
+    "Alignment",
+    "AnchorTemplates",
+    "DifferentialFrame",
+    "DifferentialMeasurement",
+    "align_templates",
+    "measure_differential",
+    "pyramid_levels",
+]
+
+#: rejection code: the measurement was accepted
+ACCEPTED = 0
+#: the window around the prediction or the match does not fit in the image
+OUTSIDE = 1
+#: the flow did not converge (OpenCV status 0), or the coasting track's anchor was not found in its gate
+NOT_FOUND = 2
+#: the match lies outside the gate ellipse
+GATE = 3
+#: the flow back to the previous frame misses the previous position
+FORWARD_BACKWARD = 4
+#: the anchor does not match the patch at the measured position (NCC below ``min_ncc``)
+APPEARANCE = 5
+#: the anchor's structure tensor is too weak to locate it (flat or edge-only patch)
+TEXTURELESS = 6
+#: the match lies farther from the prediction than the track's own recent innovations allow
+IMPLAUSIBLE = 7
+
+REJECTION_NAMES = {
+    ACCEPTED: "accepted",
+    OUTSIDE: "outside",
+    NOT_FOUND: "not found",
+    GATE: "gate",
+    FORWARD_BACKWARD: "forward-backward",
+    APPEARANCE: "appearance",
+    TEXTURELESS: "textureless",
+    IMPLAUSIBLE: "implausible",
+}
+
+#: a pyramid of L levels above the image captures displacements of about this times 2^L px (window 7–21)
+CAPTURE_PX = 4.0
+_LK_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+
+
+@dataclass(frozen=True)
+class DifferentialFrame:
+    """One frame made ready for differential measurement.
+
+    Attributes
+    ----------
+    grey : (H, W) uint8, what OpenCV's Lucas–Kanade reads.
+    image : (H, W) float32, the frame the anchors are cut from and aligned to.
+    window : side of the anchor templates (odd).
+    search_radius : largest half-size of an anchor search box (coasting tracks).
+    prepared : (property, on first use) the frame prepared for the gated anchor search.
+    """
+
+    grey: np.ndarray
+    image: np.ndarray
+    window: int
+    search_radius: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width)."""
+        return self.grey.shape  # type: ignore[return-value]
+
+    @cached_property
+    def prepared(self) -> PreparedFrame:
+        """Padded frame with its window sums; its padding also serves the alignment."""
+        return prepare_frame(self.image, self.window, self.search_radius)
+
+    @cached_property
+    def _padded(self) -> PreparedFrame:
+        # A thin border for sampling patches when no search was needed this frame; the
+        # box sums of a PreparedFrame are not used by sampling (left empty).
+        if "prepared" in self.__dict__:
+            return self.prepared
+        pad = self.window // 2 + 4
+        padded = cv2.copyMakeBorder(self.image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+        return PreparedFrame(self.image, padded, np.zeros((0, 0), np.float32), self.window, pad)
+
+    def patches(self, centers: np.ndarray, size: int | None = None) -> np.ndarray:
+        """Bilinear ``size``×``size`` patches (default: the anchor window) at sub-pixel centres (x, y)."""
+        return sample_patches(self._padded, centers, self.window if size is None else size, np.float32)
+
+
+def prepare_differential_frame(frame: np.ndarray, window: int, search_radius: int = 40) -> DifferentialFrame:
+    """Make a grey frame ready for :func:`measure_differential` (once per frame).
+
+    Parameters
+    ----------
+    frame : (H, W) grey image; uint8 is used as is, other types are rounded and
+        clipped to 0…255 for the flow (the anchors see the original values).
+    window : side of the anchor templates (odd).
+    search_radius : largest half-size of an anchor search box.
+
+    Examples
+    --------
+    >>> f = prepare_differential_frame(np.full((20, 30), 7.4), window=5)
+    >>> f.grey.dtype.name, int(f.grey[0, 0]), f.shape, f.patches(np.array([[10.0, 10.0]]), 3).shape
+    ('uint8', 7, (20, 30), (1, 3, 3))
+    """
+    image = np.ascontiguousarray(frame, dtype=np.float32)
+    grey = frame if frame.dtype == np.uint8 else np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return DifferentialFrame(np.ascontiguousarray(grey), image, int(window), int(search_radius))
+
+
+def pyramid_levels(reach_px: np.ndarray, max_level: int, capture_px: float = CAPTURE_PX) -> np.ndarray:
+    """Fewest pyramid levels L with ``capture_px``·2^L ≥ reach, clipped to 0…``max_level``.
+
+    Examples
+    --------
+    >>> pyramid_levels(np.array([1.0, 4.0, 4.1, 10.0, 17.0, 100.0, np.nan]), max_level=3).tolist()
+    [0, 0, 1, 2, 3, 3, 3]
+    """
+    reach = np.asarray(reach_px, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        levels = np.ceil(np.log2(np.maximum(reach, 1e-12) / capture_px))
+    levels = np.where(np.isfinite(levels), levels, max_level)
+    return np.clip(levels, 0, max_level).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class _TemplateTerms:
+    """What Gauss–Newton needs of each template, computed once (float32, pixels flattened):
+    its zero-mean inner pixels, their gradients, the inverse of H = Σ ∇T ∇Tᵀ and H's
+    smallest eigenvalue per pixel."""
+
+    inner: np.ndarray
+    gradients: np.ndarray
+    norm: np.ndarray
+    inverse: np.ndarray
+    well_posed: np.ndarray
+    min_eigenvalue: np.ndarray
+
+
+def _template_terms(templates: np.ndarray) -> _TemplateTerms:
+    t = np.asarray(templates, dtype=np.float32)
+    n, w = t.shape[0], t.shape[-1]
+    m = (w - 2) ** 2
+    # Central differences on the inner (w - 2)² pixels, where both neighbours exist.
+    gradients = np.stack([t[:, 1:-1, 2:] - t[:, 1:-1, :-2], t[:, 2:, 1:-1] - t[:, :-2, 1:-1]], axis=1).reshape(n, 2, m)
+    gradients *= np.float32(0.5)
+    inner = t[:, 1:-1, 1:-1].reshape(n, m)
+    inner = inner - inner.mean(axis=1, keepdims=True)
+    H = (gradients @ np.swapaxes(gradients, 1, 2)).astype(np.float64)
+    hxx, hxy, hyy = H[:, 0, 0], H[:, 0, 1], H[:, 1, 1]
+    det = hxx * hyy - hxy * hxy
+    well_posed = det > 1e-9 * np.maximum(hxx + hyy, 1e-12) ** 2
+    safe_det = np.where(well_posed, det, 1.0)
+    # H⁻¹ = [[hyy, -hxy], [-hxy, hxx]] / det
+    inverse = np.stack([hyy, -hxy, -hxy, hxx], axis=1).reshape(n, 2, 2) / safe_det[:, None, None]
+    # Smallest eigenvalue of H, per pixel.
+    min_eigenvalue = (0.5 * (hxx + hyy) - np.sqrt(0.25 * (hxx - hyy) ** 2 + hxy * hxy)) / m
+    norm = np.sqrt(np.einsum("ni,ni->n", inner, inner).astype(np.float64))
+    return _TemplateTerms(inner, gradients, norm, inverse, well_posed, min_eigenvalue)
+
+
+def _compare(terms: _TemplateTerms, patches: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NCC, residual variance σ² and Gauss–Newton step of templates against patches of the same (w - 2)² size.
+
+    The residual is r = T̃ - g Ĩ with the gain g = ‖T̃‖ / ‖Ĩ‖ (T̃, Ĩ minus their means);
+    σ² = Σ r² / (n - 4) (translation, gain and offset fitted); the step is H⁻¹ Σ ∇T r.
+    """
+    n = patches.shape[0]
+    patch = patches.reshape(n, -1)
+    patch = patch - patch.mean(axis=1, keepdims=True)
+    p_norm = np.sqrt(np.einsum("ni,ni->n", patch, patch).astype(np.float64))
+    gain = np.where(p_norm > 1e-9, terms.norm / np.maximum(p_norm, 1e-9), 1.0)
+    residual = terms.inner - gain.astype(np.float32)[:, None] * patch
+    ncc = np.einsum("ni,ni->n", terms.inner, patch) / np.maximum(terms.norm * p_norm, 1e-12)
+    sigma_sq = np.einsum("ni,ni->n", residual, residual).astype(np.float64) / max(patch.shape[1] - 4, 1)
+    b = (terms.gradients @ residual[:, :, None])[:, :, 0].astype(np.float64)
+    step = np.where(terms.well_posed[:, None], np.einsum("nij,nj->ni", terms.inverse, b), 0.0)
+    return ncc, sigma_sq, step
+
+
+def _covariance(terms: _TemplateTerms, sigma_sq: np.ndarray) -> np.ndarray:
+    """σ² H⁻¹ per template (px²), NaN where H is singular."""
+    covariances = sigma_sq[:, None, None] * terms.inverse
+    covariances[~terms.well_posed] = np.nan
+    return covariances
+
+
+def _take_terms(terms: _TemplateTerms, index: np.ndarray) -> _TemplateTerms:
+    return _TemplateTerms(*(getattr(terms, f.name)[index] for f in fields(_TemplateTerms)))
+
+
+def _concatenate_terms(first: _TemplateTerms, second: _TemplateTerms) -> _TemplateTerms:
+    return _TemplateTerms(*(np.concatenate([getattr(first, f.name), getattr(second, f.name)]) for f in fields(_TemplateTerms)))
+
+
+class AnchorTemplates:
+    """Anchor templates with their alignment terms (gradients, H⁻¹), computed once per template.
+
+    Anchors change only when a track starts or its anchor is renewed, so the terms are
+    kept and computed again only for the rows that change.
+
+    Parameters
+    ----------
+    templates : (N, w, w) templates.
+
+    Examples
+    --------
+    >>> bank = AnchorTemplates(np.ones((3, 5, 5)))
+    >>> bank = bank.take(np.array([0, 2])).replace(np.array([1]), np.zeros((1, 5, 5))).append(np.ones((1, 5, 5)))
+    >>> len(bank), bank.templates.sum(axis=(1, 2)).tolist()
+    (3, [25.0, 0.0, 25.0])
+    """
+
+    def __init__(self, templates: np.ndarray, _terms: _TemplateTerms | None = None) -> None:
+        self.templates = np.asarray(templates, dtype=np.float32)
+        self.terms = _template_terms(self.templates) if _terms is None else _terms
+
+    def __len__(self) -> int:
+        return len(self.templates)
+
+    def take(self, index: np.ndarray) -> AnchorTemplates:
+        """The anchors at ``index`` (indices or a boolean mask)."""
+        return AnchorTemplates(self.templates[index], _take_terms(self.terms, index))
+
+    def append(self, templates: np.ndarray) -> AnchorTemplates:
+        """These anchors followed by ``templates``."""
+        new = AnchorTemplates(np.asarray(templates, dtype=np.float32).reshape(-1, *self.templates.shape[1:]))
+        return AnchorTemplates(np.concatenate([self.templates, new.templates]), _concatenate_terms(self.terms, new.terms))
+
+    def replace(self, rows: np.ndarray, templates: np.ndarray) -> AnchorTemplates:
+        """These anchors with the ones at ``rows`` replaced by ``templates`` (a keyframe)."""
+        rows = np.asarray(rows, dtype=np.intp)
+        new = AnchorTemplates(templates)
+        merged = self.templates.copy()
+        merged[rows] = new.templates
+        terms = _TemplateTerms(*(getattr(self.terms, f.name).copy() for f in fields(_TemplateTerms)))
+        for f in fields(_TemplateTerms):
+            getattr(terms, f.name)[rows] = getattr(new.terms, f.name)
+        return AnchorTemplates(merged, terms)
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """Templates aligned to a frame by Gauss–Newton (:func:`align_templates`).
+
+    Attributes
+    ----------
+    positions : (N, 2) aligned positions (x, y); the start where the alignment ended
+        more than ``max_shift_px`` away.
+    ncc : (N,) normalised cross-correlation of template and patch at ``positions``.
+    covariances : (N, 2, 2) σ² (Σ ∇T ∇Tᵀ)⁻¹, the alignment's own position covariance
+        (px²), σ² the residual variance after gain and offset; NaN where ill-posed.
+    min_eigenvalue : (N,) smallest eigenvalue of Σ ∇T ∇Tᵀ per pixel (grey levels² / px²).
+    residual_variance : (N,) σ², the residual's variance per pixel after gain and offset.
+    converged : (N,) True where the alignment ended within ``max_shift_px`` of the start.
+    patches : (N, w, w) the frame's patches at ``positions``.
+    """
+
+    positions: np.ndarray
+    ncc: np.ndarray
+    covariances: np.ndarray
+    min_eigenvalue: np.ndarray
+    residual_variance: np.ndarray
+    converged: np.ndarray
+    patches: np.ndarray
+
+
+def align_templates(
+    frame: DifferentialFrame,
+    templates: np.ndarray | AnchorTemplates,
+    start: np.ndarray,
+    iterations: int = 2,
+    max_shift_px: float = 1.5,
+    start_patches: np.ndarray | None = None,
+) -> Alignment:
+    """Align templates to the frame near ``start`` (Lucas–Kanade for a translation, with gain and offset).
+
+    Minimises Σ (T̃(u) - g Ĩ(p + u))² over p, where T̃, Ĩ are the template and the
+    patch minus their means and the gain g = ‖T̃‖ / ‖Ĩ‖ (so the fit ignores
+    brightness and contrast, as NCC does).  Linearising the template gives the step
+
+        d = H⁻¹ Σ ∇T (T̃ - g Ĩ),   H = Σ ∇T ∇Tᵀ,
+
+    with the template's gradients (central differences on its inner pixels) and H
+    computed once.  At the end, the position's covariance is σ² H⁻¹ with
+    σ² = Σ r² / (n - 4) (n inner pixels; translation, gain and offset fitted).
+
+    Parameters
+    ----------
+    frame : the prepared frame.
+    templates : (N, w, w) templates (w odd, at least 5), or an :class:`AnchorTemplates`
+        (whose terms are then reused).
+    start : (N, 2) start positions (x, y).
+    iterations : Gauss–Newton steps.
+    max_shift_px : an alignment that ends farther than this from ``start`` keeps the start.
+    start_patches : (N, w, w) the frame's patches at ``start`` when already sampled.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(3)
+    >>> img = cv2.GaussianBlur(rng.uniform(0, 255, (40, 40)), (0, 0), 2.0)
+    >>> f = prepare_differential_frame(img, 11)
+    >>> a = align_templates(f, f.patches(np.array([[20.3, 19.6]])), np.array([[20.0, 20.0]]), iterations=4)
+    >>> np.round(a.positions, 2), bool(a.ncc[0] > 0.999), bool(a.covariances[0, 0, 0] < 1e-3)
+    (array([[20.3, 19.6]]), True, True)
+    """
+    start = np.asarray(start, dtype=np.float64).reshape(-1, 2)
+    bank = templates if isinstance(templates, AnchorTemplates) else AnchorTemplates(templates)
+    w = bank.templates.shape[-1]
+    terms = bank.terms
+    patches = frame.patches(start, w) if start_patches is None else start_patches
+    current = start.copy()
+    for _ in range(iterations):
+        _, _, step = _compare(terms, patches[:, 1:-1, 1:-1])
+        current = current + step
+        patches = frame.patches(current, w)
+    converged = np.linalg.norm(current - start, axis=1) <= max_shift_px
+    if not converged.all():
+        current[~converged] = start[~converged]
+        patches = patches.copy()
+        patches[~converged] = frame.patches(start[~converged], w)
+    ncc, sigma_sq, _ = _compare(terms, patches[:, 1:-1, 1:-1])
+    return Alignment(current, ncc, _covariance(terms, sigma_sq), terms.min_eigenvalue, sigma_sq, converged, patches)
+
+
+@dataclass(frozen=True)
+class DifferentialMeasurement:
+    """What :func:`measure_differential` found for each of k tracks.
+
+    Attributes
+    ----------
+    positions : (k, 2) measured positions (x, y); NaN where rejected.
+    accepted : (k,) True where the measurement passed every check.
+    noise_covariances : (k, 2, 2) measurement noise R (px²) for the Kalman update;
+        NaN where rejected.
+    rejection : (k,) int8 reason code, 0 where accepted (see :data:`REJECTION_NAMES`).
+    anchored : (k,) True where the position is the anchor's alignment (drift-free).
+    anchor_ncc : (k,) NCC of the anchor at the measured position (NaN if not computed).
+    forward_backward_px : (k,) distance between the previous position and the flow
+        back from the match (NaN for coasting tracks and failed flows).
+    levels : (k,) pyramid levels used for the flow (-1 for coasting tracks, searched instead).
+    patches : (k, w, w) the frame's patches at the measured positions (the next frame's
+        ``previous_patches``); NaN where rejected.
+    """
+
+    positions: np.ndarray
+    accepted: np.ndarray
+    noise_covariances: np.ndarray
+    rejection: np.ndarray
+    anchored: np.ndarray
+    anchor_ncc: np.ndarray
+    forward_backward_px: np.ndarray
+    levels: np.ndarray
+    patches: np.ndarray
+
+
+def _flow(
+    source: np.ndarray, target: np.ndarray, points: np.ndarray, start: np.ndarray, window: int, levels: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV pyramidal LK from ``points`` in ``source`` to ``target``, started at ``start``; (positions, converged)."""
+    found, status, _ = cv2.calcOpticalFlowPyrLK(
+        source,
+        target,
+        np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 1, 2),
+        np.ascontiguousarray(start, dtype=np.float32).reshape(-1, 1, 2),
+        winSize=(window, window),
+        maxLevel=int(levels),
+        criteria=_LK_CRITERIA,
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    return found.reshape(-1, 2).astype(np.float64), status.reshape(-1) == 1
+
+
+def _inside(positions: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
+    """True where (x, y) lies at least ``margin`` px inside the pixel centres' range (negative: outside allowed)."""
+    height, width = shape
+    x, y = positions[:, 0], positions[:, 1]
+    with np.errstate(invalid="ignore"):
+        return (x >= margin) & (x <= width - 1 - margin) & (y >= margin) & (y <= height - 1 - margin)
+
+
+def measure_differential(
+    previous: DifferentialFrame,
+    current: DifferentialFrame,
+    previous_positions: np.ndarray,
+    previous_patches: np.ndarray,
+    predicted_positions: np.ndarray,
+    predicted_covariances: np.ndarray,
+    anchors: AnchorTemplates,
+    *,
+    coasting: np.ndarray | None = None,
+    previous_covariances: np.ndarray | None = None,
+    anchor_covariances: np.ndarray | None = None,
+    max_innovation_px: np.ndarray | None = None,
+    gate_radius: float = 2.4477,
+    window: int = 11,
+    max_level: int = 3,
+    forward_backward_px: float = 1.0,
+    min_ncc: float = 0.6,
+    anchor_ncc: float = 0.97,
+    trust_ratio: float = 3.0,
+    reacquire_ncc: float = 0.9,
+    anchor_agreement_px: float = 1.5,
+    min_eigenvalue: float = 0.1,
+    capture_px: float = CAPTURE_PX,
+    iterations: int = 1,
+    fallback_noise: np.ndarray | None = None,
+) -> DifferentialMeasurement:
+    """Measure k tracks in ``current`` from their Kalman predictions (module docs).
+
+    Parameters
+    ----------
+    previous, current : consecutive prepared frames (:func:`prepare_differential_frame`).
+    previous_positions : (k, 2) positions (x, y) in ``previous`` (where the chain continues from).
+    previous_patches : (k, w, w) patches of ``previous`` at those positions (the last
+        call's ``patches``); the chain's appearance and noise are judged against them.
+    predicted_positions : (k, 2) predicted positions p⁻ in ``current``.
+    predicted_covariances : (k, 2, 2) predicted position covariances Σ⁻.
+    anchors : the k anchor templates (w×w, w = ``current.window``).
+    coasting : (k,) True for tracks not measured in ``previous``: their anchor is
+        searched in the gate instead of followed by flow.
+    previous_covariances : (k, 2, 2) noise of the previous measurement (default 0); a
+        chained (not anchored) match adds its own to it, as its error is the previous
+        one's plus the flow's.
+    anchor_covariances : (k, 2, 2) uncertainty of where each anchor was cut (default 0:
+        the anchor defines the point).
+    max_innovation_px : (k,) largest plausible distance ‖z - p⁻‖ per track (from its
+        recent innovations), or None; farther matches are refused, the flow's pyramid
+        reaches no farther, and a coasting track's anchor is searched only within it.
+    gate_radius : c of the gate (z - p⁻)ᵀ (Σ⁻)⁻¹ (z - p⁻) ≤ c².
+    window : side of the flow's window (odd).
+    max_level : deepest pyramid level the flow may use.
+    forward_backward_px : largest distance between the flow back and the previous position.
+    min_ncc : the measured patch must match the anchor or the previous patch at least this well.
+    anchor_ncc : at or above this NCC the anchor's alignment is the measurement.
+    trust_ratio : the anchor's alignment is also the measurement when its residual
+        variance is at most this times the chain's (it explains the patch nearly as well
+        as the previous frame does).
+    reacquire_ncc : a coasting track is found again only where its anchor matches this well.
+    anchor_agreement_px : the anchor's alignment must end this close to the flow's match.
+    min_eigenvalue : smallest structure-tensor eigenvalue per pixel (grey levels²/px²)
+        of the template that locates the point.
+    capture_px : displacement a single-level flow captures (sets the pyramid depth).
+    iterations : Gauss–Newton steps of the anchor's alignment.
+    fallback_noise : (2, 2) noise R for a match whose own cannot be estimated (its
+        template's structure tensor is singular, next to the image border); None
+        refuses such matches (TEXTURELESS).
+
+    Returns
+    -------
+    DifferentialMeasurement
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> world = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)), (0, 0), 2.0)
+    >>> a = prepare_differential_frame(world[20:100, 20:140], 11)
+    >>> b = prepare_differential_frame(world[20:100, 22:142], 11)   # the scene moves 2 px left
+    >>> p = np.array([[60.0, 40.0]])
+    >>> m = measure_differential(a, b, p, a.patches(p), p - [1.5, 0.0], np.eye(2)[None] * 4.0, AnchorTemplates(a.patches(p)))
+    >>> np.round(m.positions, 2), m.accepted, m.anchored, m.rejection
+    (array([[58., 40.]]), array([ True]), array([ True]), array([0], dtype=int8))
+    """
+    if previous.shape != current.shape:
+        raise InvalidInputError(f"previous and current frames differ in size: {previous.shape} vs {current.shape}")
+    p_prev = np.asarray(previous_positions, dtype=np.float64).reshape(-1, 2)
+    predicted = np.asarray(predicted_positions, dtype=np.float64).reshape(-1, 2)
+    sigma = np.asarray(predicted_covariances, dtype=np.float64).reshape(-1, 2, 2)
+    k = len(p_prev)
+    w = current.window
+    if predicted.shape[0] != k or sigma.shape[0] != k or anchors.templates.shape != (k, w, w) or previous_patches.shape != (k, w, w):
+        raise InvalidInputError(
+            f"measure_differential needs one row per track and {w}×{w} patches; got {k} previous positions, "
+            f"{predicted.shape[0]} predictions, {sigma.shape[0]} covariances, anchors {anchors.templates.shape}, patches {previous_patches.shape}"
+        )
+    coasting = np.zeros(k, bool) if coasting is None else np.asarray(coasting, bool)
+    zero = np.zeros((k, 2, 2))
+    previous_cov = zero if previous_covariances is None else np.asarray(previous_covariances, dtype=np.float64)
+    anchor_cov = zero if anchor_covariances is None else np.asarray(anchor_covariances, dtype=np.float64)
+    limit = None if max_innovation_px is None else np.asarray(max_innovation_px, dtype=np.float64).reshape(k)
+
+    rejection = np.full(k, ACCEPTED, np.int8)
+    z = np.full((k, 2), np.nan)
+    fb_error = np.full(k, np.nan)
+    levels_used = np.full(k, -1, np.int64)
+    searchable = _inside(predicted, current.shape, -0.5) & np.isfinite(sigma).all(axis=(1, 2))
+    rejection[~searchable] = OUTSIDE
+    # The gate ellipse reaches c·√λmax(Σ⁻) from the prediction; matches beyond the plausible
+    # radius are refused anyway, so the search reaches no farther than that either.
+    a, b, d = sigma[:, 0, 0], sigma[:, 0, 1], sigma[:, 1, 1]
+    lambda_max = 0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b)
+    reach = gate_radius * np.sqrt(np.maximum(lambda_max, 0.0))
+    if limit is not None:
+        reach = np.minimum(reach, limit)
+
+    # 1-2. Flow from the prediction and back, one OpenCV call per pyramid depth and direction.
+    followed = searchable & ~coasting & _inside(p_prev, current.shape, -0.5)
+    levels = pyramid_levels(reach, max_level, capture_px)
+    for level in np.unique(levels[followed]):
+        rows = np.flatnonzero(followed & (levels == level))
+        forward, ok = _flow(previous.grey, current.grey, p_prev[rows], predicted[rows], window, level)
+        # Back from the match, started where the predicted motion says it came from.
+        back_start = forward - (predicted[rows] - p_prev[rows])
+        backward, ok_back = _flow(current.grey, previous.grey, forward, back_start, window, level)
+        error = np.linalg.norm(backward - p_prev[rows], axis=1)
+        z[rows] = forward
+        fb_error[rows] = np.where(ok & ok_back, error, np.nan)
+        levels_used[rows] = level
+        rejection[rows[~ok]] = NOT_FOUND
+        rejection[rows[ok & ~(ok_back & (error <= forward_backward_px))]] = FORWARD_BACKWARD
+
+    # Coasting tracks: search the anchor in the gate, shrunk to the plausible radius.  SSD
+    # needs only the frame's window sums of I²; the alignment below checks the NCC.
+    searched = np.flatnonzero(searchable & coasting)
+    if len(searched):
+        search_sigma = sigma[searched] * np.minimum(1.0, (reach[searched] / np.maximum(gate_radius * np.sqrt(lambda_max[searched]), 1e-12)) ** 2)[:, None, None]
+        match = match_templates(current.prepared, anchors.templates[searched], predicted[searched], search_sigma, gate_radius, "ssd", current.search_radius)
+        z[searched] = match.positions
+        rejection[searched[~match.searched]] = NOT_FOUND
+
+    # 3-5. Chain and anchor: appearance, which of the two measures, and the noise.
+    anchored = np.zeros(k, bool)
+    ncc = np.full(k, np.nan)
+    noise = np.full((k, 2, 2), np.nan)
+    patches_out = np.full((k, w, w), np.nan, np.float32)
+    standing = np.flatnonzero(rejection == ACCEPTED)
+    if len(standing):
+        flowed = followed[standing]
+        at_match = current.patches(z[standing], w)
+        alignment = align_templates(current, anchors.take(standing), z[standing], iterations, anchor_agreement_px, at_match)
+        ncc[standing] = alignment.ncc
+        very_good = alignment.converged & (alignment.ncc >= anchor_ncc)
+        # The chain, where the anchor alone does not settle it: the previous frame's patch
+        # against the flow's match (the flow reports neither its residual nor its appearance).
+        chain_ncc = np.full(len(standing), np.nan)
+        chain_variance = np.full(len(standing), np.nan)
+        chain_cov = np.full((len(standing), 2, 2), np.nan)
+        chain_eigenvalue = np.full(len(standing), np.nan)
+        judged = flowed & ~very_good
+        if judged.any():
+            chain_terms = _template_terms(previous_patches[standing[judged]])
+            chain_ncc[judged], chain_variance[judged], _ = _compare(chain_terms, at_match[judged][:, 1:-1, 1:-1])
+            chain_cov[judged] = _covariance(chain_terms, chain_variance[judged])
+            chain_eigenvalue[judged] = chain_terms.min_eigenvalue
+        # The anchor measures where it matches very well, or explains the patch nearly as well
+        # as the previous frame does; a coasting track (no chain) only at reacquire_ncc.
+        # Near the border its window reaches into the replicated edge: there the chain measures.
+        as_good = alignment.residual_variance <= trust_ratio * chain_variance
+        away_from_border = _inside(alignment.positions, current.shape, w // 2 + 1)
+        trusted = alignment.converged & (alignment.ncc >= min_ncc) & np.where(
+            flowed, (very_good | as_good) & away_from_border, alignment.ncc >= reacquire_ncc
+        )
+        anchored[standing] = trusted
+        z[standing] = np.where(trusted[:, None], alignment.positions, z[standing])
+        patches_out[standing] = np.where(trusted[:, None, None], alignment.patches, at_match)
+        # Appearance: neither the anchor nor the previous frame's patch matches (an occluder, a jump).
+        best_ncc = np.fmax(alignment.ncc, chain_ncc)
+        rejection[standing[~(best_ncc >= min_ncc)]] = APPEARANCE
+        rejection[standing[~flowed & ~trusted]] = NOT_FOUND
+        eigenvalue = np.where(trusted | ~flowed, alignment.min_eigenvalue, chain_eigenvalue)
+        # (Near the border the padded window's gradients say nothing; OpenCV's own eigenvalue test applies there.)
+        rejection[standing[~(eigenvalue >= min_eigenvalue) & away_from_border]] = TEXTURELESS
+        # Noise: the refinement's own covariance, plus where the anchor was cut (anchored)
+        # or the previous measurement's (chained: its error carries over).
+        noise[standing] = np.where(
+            (trusted | ~flowed)[:, None, None], alignment.covariances + anchor_cov[standing], chain_cov + previous_cov[standing]
+        )
+
+    unknown_noise = (rejection == ACCEPTED) & ~np.isfinite(noise).all(axis=(1, 2))
+    if fallback_noise is None:
+        rejection[unknown_noise] = TEXTURELESS
+    else:
+        noise[unknown_noise] = fallback_noise
+
+    # Gate and plausibility; the match must lie in the image.
+    standing_mask = rejection == ACCEPTED
+    offset = z - predicted
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # dᵀ Σ⁻¹ d for 2×2 Σ = [[a, b], [b, d]]: (d dx² - 2 b dx dy + a dy²) / (a d - b²)
+        dx, dy = offset[:, 0], offset[:, 1]
+        mahalanobis_sq = (d * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * d - b * b)
+    rejection[standing_mask & ~(mahalanobis_sq <= gate_radius**2)] = GATE
+    if limit is not None:
+        rejection[(rejection == ACCEPTED) & ~(np.linalg.norm(offset, axis=1) <= limit)] = IMPLAUSIBLE
+    rejection[(rejection == ACCEPTED) & ~_inside(z, current.shape, -0.5)] = OUTSIDE
+
+    accepted = rejection == ACCEPTED
+    z[~accepted] = np.nan
+    noise[~accepted] = np.nan
+    patches_out[~accepted] = np.nan
+    anchored &= accepted
+    return DifferentialMeasurement(z, accepted, noise, rejection, anchored, ncc, fb_error, levels_used, patches_out)
