@@ -30,7 +30,7 @@ import tracemalloc  # noqa: E402
 import numpy as np  # noqa: E402
 
 from kalmansfm import KalmanFilter  # noqa: E402
-from kalmansfm.models import constant_velocity_2d  # noqa: E402
+from kalmansfm.estimation import constant_velocity_2d  # noqa: E402
 
 
 def make_problem(N: int, T: int, p_missing: float, seed: int = 0):

@@ -8,10 +8,10 @@ For each seed the scene is rendered three times: plain; with the default occlude
 (``Occluder()``: it hides track 0 in frames 10–12, track 1 in 20–23 — one frame more than
 the tracker coasts, so that track is lost — and track 6 in 24–26); and with a small card
 (``Occluder(track_id=2, height_px=12)``) that hides track 2 alone in frames 10–12.
-the frame-0 visible corners are tracked as ``run_pipeline`` does, and the tracks are
+the frame-0 visible corners are tracked as ``run_demo`` does, and the tracks are
 scored as filtered, fixed-interval smoothed and fixed-lag smoothed (lag 3):
 
-* measured: frames where the tracker measured a visible corner (``compare_with_scene``);
+* measured: frames where the tracker measured a visible corner (``compare_with_truth``);
 * coasting: frames where a track coasted (status "predicted"), against the true position;
 * shape error: the weighted factorization of the measured positions (``factorize_tracks``,
   as ``kalmansfm demo``), RMS after similarity alignment in % of the object's radius;
@@ -33,7 +33,7 @@ import argparse  # noqa: E402
 import numpy as np  # noqa: E402
 
 from kalmansfm.errors import NotEnoughDataError  # noqa: E402
-from kalmansfm.pipeline import compare_with_scene, factorize_tracks, structure_summary, tracking_summary  # noqa: E402
+from kalmansfm.pipeline import compare_with_truth, factorize_tracks  # noqa: E402
 from kalmansfm.scenes import Occluder, render_scene  # noqa: E402
 from kalmansfm.tracking import track  # noqa: E402
 from kalmansfm.tracking.smoothing import smooth_tracks  # noqa: E402
@@ -43,14 +43,11 @@ VARIANTS = ("filtered", "smoothed", "fixed lag 3")
 
 
 def shape_error(tracks, scene, weighted: bool) -> float:
-    summary = {"tracking": tracking_summary(tracks)}
     try:
         reconstruction = factorize_tracks(tracks, weighted=weighted)
     except NotEnoughDataError:
         return float("nan")
-    summary["factorization"] = structure_summary(reconstruction)
-    compare_with_scene(tracks, reconstruction, scene, summary)
-    value = summary["factorization"]["shape_error_pct"]
+    value = compare_with_truth(tracks, reconstruction, scene.ground_truth()).shape_error_pct
     return float("nan") if value is None else float(value)
 
 

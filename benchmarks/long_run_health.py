@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from kalmansfm.estimation.kalman import KalmanFilter
-from kalmansfm.models import constant_velocity_2d
+from kalmansfm.estimation import constant_velocity_2d
 
 MODEL = constant_velocity_2d(position_noise_std=1e-3, velocity_noise_std=1e-3, measurement_noise_std=1.0)
 BLOCK = 10_000  # measurements are drawn in blocks of steps to keep memory flat

@@ -23,8 +23,8 @@ from kalmansfm import NotEnoughDataError, track
 from kalmansfm.io.frames import read_frames
 from kalmansfm.pipeline import factorize_tracks
 from kalmansfm.tracking.tracks import MEASURED
-from kalmansfm.report.plot_structure import plot_structure
-from kalmansfm.scenes import report_tracks
+from kalmansfm.experiments import report_tracks
+from kalmansfm.report.figures import shape_views_figure
 from kalmansfm.structure import align_affine, align_similarity, factorize
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -51,7 +51,8 @@ def show(name: str, rec, figures: Path | None, ids=None) -> None:
         print(f"    warning: {w}")
     if figures is not None:
         ids = np.arange(len(rec.points)) if ids is None else ids
-        plot_structure(rec.points, ids, figures / f"structure_{name}.png", title=name)
+        finite = np.isfinite(rec.points).all(axis=1)
+        (figures / f"structure_{name}.png").write_bytes(shape_views_figure(rec.points[finite], list(np.asarray(ids)[finite])))
 
 
 def house_labels() -> np.ndarray:
@@ -76,7 +77,7 @@ def shipped(args: argparse.Namespace) -> None:
 
     print("== report tracks (9 points, 30 frames)")
     tracks = report_tracks()
-    rec = factorize(tracks.positions)
+    rec = factorize(tracks.observations())
     show("report_polyhedron", rec, args.figures, tracks.track_ids)
     print("points:\n", rec.points)
     # The report's recipe without centring: the rank-3 truncation then has to spend one
@@ -200,8 +201,7 @@ def tracked_sequences(images: Path | None) -> None:
             rows.append(tracked_row(f"  same, only the {int(everywhere.sum())} tracks measured in every frame", sub,
                                     block, t_track))
         if picture and images is not None and block is not None:
-            plot_structure(block.points, tracks.track_ids[everywhere], images / picture,
-                           title=f"{name}: tracks seen in all frames", max_labels=40)
+            (images / picture).write_bytes(shape_views_figure(block.points, tracks.track_ids[everywhere].tolist()))
         return tracks, rec
 
     house_frames = list(read_frames(DATA / "cmu_house" / "images"))

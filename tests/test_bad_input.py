@@ -16,7 +16,6 @@ library warning (OpenCV, FFmpeg, Dask) reaches the terminal.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -27,6 +26,7 @@ import numpy as np
 import pytest
 
 from kalmansfm.cli.main import main
+from kalmansfm.io import RunSummary, summary_json
 from kalmansfm.scenes import render_scene
 
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -98,7 +98,7 @@ CASES = [
     ("report", "{d}/empty", "empty/summary.json: not found"),
     ("report", "{d}/a_file.txt", "a_file.txt does not exist or is not a folder"),
     ("report", "{d}/run_bad_json", "run_bad_json/summary.json: is not valid JSON"),
-    ("report", "{d}/run_bad_npz", "run_bad_npz/tracks.npz: positions must have shape (frames, points, 2)"),
+    ("report", "{d}/run_bad_npz", "run_bad_npz/tracks.npz: positions must be a numeric (frames, points, 2) array"),
     ("report", "{d}/run_bad_structure", "run_bad_structure/structure.csv, line 2: column 'Y' must be a number"),
     ("report", "{d}/run_bad_json --name ../escape.html", "out_name must be a plain file name"),
     # --- batch -------------------------------------------------------------------------------
@@ -197,12 +197,14 @@ def bad_inputs(tmp_path_factory) -> Path:
     np.savez(d / "no_ids.npz", positions=np.zeros((4, 5, 2)), status=np.ones((4, 5), np.int8))
     (d / "text.npz").write_text("not a zip archive\n")
 
-    summary = json.dumps({"command": "track", "kalmansfm_version": "0"}) + "\n"
+    def summary(*files: str) -> bytes:
+        return summary_json(RunSummary(command="track", input="x", files=(*files, "summary.json"))).encode()
+
     folder("run_bad_json", {"summary.json": b"{ not json"})
-    folder("run_bad_npz", {"summary.json": summary.encode()})
+    folder("run_bad_npz", {"summary.json": summary("tracks.npz")})
     np.savez(d / "run_bad_npz" / "tracks.npz", positions=np.zeros((3, 4, 3)), status=np.zeros((3, 4), np.int8),
              track_ids=np.arange(4))
-    folder("run_bad_structure", {"summary.json": summary.encode(), "structure.csv": b"track_id,X,Y,Z\n1,2,abc,4\n"})
+    folder("run_bad_structure", {"summary.json": summary("structure.csv"), "structure.csv": b"track_id,X,Y,Z\n1,2,abc,4\n"})
     return d
 
 

@@ -2,36 +2,26 @@
 
 The public API is what ``__all__`` lists; everything else is internal.
 Data flows one way: frames → :func:`track` → :func:`factorize` → report
-(:func:`run_pipeline` does all of it); :func:`fuse_recursive` and
+(:func:`run_demo` does all of it); :func:`fuse_recursive` and
 :func:`estimate_landmarks` fuse 3D structure under known motion.
+The layers and what each may import: docs/architecture.md.
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("kalmansfm")
-except PackageNotFoundError:  # running from a source tree without installation
-    __version__ = "0.0.0+unknown"
-
-from . import models  # noqa: E402
-from .errors import (  # noqa: E402
-    InvalidInputError,
-    KalmanSfmError,
-    KalmanSfmWarning,
-    NotEnoughDataError,
-    SingularCovarianceError,
-)
-from .estimation import (  # noqa: E402
+from ._version import __version__
+from .errors import InvalidInputError, KalmanSfmError, KalmanSfmWarning, NotEnoughDataError, SingularCovarianceError
+from .estimation import (
     FilterRun,
     FusionResult,
     KalmanFilter,
+    LinearGaussianModel,
     SmoothedRun,
+    constant_velocity_2d,
     fuse_closed_form,
     fuse_recursive,
     smooth,
 )
-from .pipeline import PipelineResult, run_pipeline  # noqa: E402
-from .structure import (  # noqa: E402
+from .pipeline import DemoRun, run_demo
+from .structure import (
     LandmarkEstimates,
     Reconstruction,
     TriangulationResult,
@@ -40,9 +30,10 @@ from .structure import (  # noqa: E402
     factorize,
     triangulate_midpoint,
 )
-from .tracking import Tracker, Tracks, track  # noqa: E402
+from .tracking import Tracker, TrackerSettings, Tracks, TrackStatus, track
 
 __all__ = [
+    "DemoRun",
     "FilterRun",
     "FusionResult",
     "InvalidInputError",
@@ -50,22 +41,24 @@ __all__ = [
     "KalmanSfmError",
     "KalmanSfmWarning",
     "LandmarkEstimates",
+    "LinearGaussianModel",
     "NotEnoughDataError",
-    "PipelineResult",
     "Reconstruction",
     "SingularCovarianceError",
     "SmoothedRun",
+    "TrackStatus",
     "Tracker",
+    "TrackerSettings",
     "Tracks",
     "TriangulationResult",
     "__version__",
     "align_similarity",
+    "constant_velocity_2d",
     "estimate_landmarks",
     "factorize",
     "fuse_closed_form",
     "fuse_recursive",
-    "models",
-    "run_pipeline",
+    "run_demo",
     "smooth",
     "track",
     "triangulate_midpoint",

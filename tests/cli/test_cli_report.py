@@ -1,10 +1,10 @@
-import json
 from pathlib import Path
 
 import fake_run  # tests/unit/report (see tests/conftest.py)
 import pytest
 
 import kalmansfm.cli.main as cli
+from kalmansfm.io import RunSummary, summary_json
 
 
 def test_report_rebuilds_the_html_and_prints_its_path(tmp_path, capsys):
@@ -17,7 +17,7 @@ def test_report_rebuilds_the_html_and_prints_its_path(tmp_path, capsys):
 
 
 def test_open_hands_a_file_uri_to_the_browser(tmp_path, capsys, monkeypatch):
-    (tmp_path / "summary.json").write_text(json.dumps({"input": "x"}))
+    (tmp_path / "summary.json").write_text(summary_json(RunSummary(command="track", input="x")))
     opened = []
     monkeypatch.setattr("webbrowser.open", lambda url, *a, **k: opened.append(url) or True)
     assert cli.main(["report", str(tmp_path), "--open", "--quiet"]) == 0

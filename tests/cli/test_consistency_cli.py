@@ -1,4 +1,4 @@
-"""``kalmansfm consistency`` and the Task 7 options for ``kalmansfm tables --task 7``."""
+"""``kalmansfm consistency`` and the Task 7 options of ``kalmansfm tables --task 7``."""
 
 import argparse
 
@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from kalmansfm.cli import main as cli_main
-from kalmansfm.cli.task7 import add_task7_options, run_task7
-from kalmansfm.report.tables import FusionTable, format_csv
+from kalmansfm.cli.tables import add_task7_options
+from kalmansfm.experiments import FusionTable, fusion_table
+from kalmansfm.report.tables import format_csv
 
 
 @pytest.fixture
@@ -64,6 +65,11 @@ def _task7_args(*argv):
     parser = argparse.ArgumentParser()
     add_task7_options(parser)
     return parser.parse_args(list(argv))
+
+
+def run_task7(args):
+    """What ``kalmansfm tables --task 7`` computes from its options."""
+    return fusion_table(7, method=args.method, seed=args.seed, focal=args.focal, pixel_noise_std=args.pixel_noise)
 
 
 def test_run_task7_returns_a_fusion_table_in_the_task4_6_columns():

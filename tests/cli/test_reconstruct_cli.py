@@ -1,4 +1,3 @@
-import json
 import subprocess
 import sys
 from importlib.resources import files
@@ -8,6 +7,7 @@ import numpy as np
 import pytest
 
 from kalmansfm.cli.main import main
+from kalmansfm.io import read_summary
 
 REPORT_CSV = Path(str(files("kalmansfm") / "data" / "report_polyhedron_tracks.csv"))
 
@@ -23,8 +23,7 @@ def test_reconstruct_writes_all_files(tmp_path, capsys):
     assert structure.shape == (9, 4) and structure[:, 0].tolist() == list(range(1, 10))
     motion = np.loadtxt(out / "motion.csv", delimiter=",", skiprows=1)
     assert motion.shape == (30, 9) and motion[0, 0] == 1
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["residual_rms_px"] == pytest.approx(2.88, abs=0.01)
+    assert read_summary(out / "summary.json").structure.residual_rms_px == pytest.approx(2.88, abs=0.01)
     assert (out / "structure.png").read_bytes()[:4] == b"\x89PNG"
 
 

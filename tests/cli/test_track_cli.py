@@ -1,12 +1,11 @@
 """kalmansfm track: outputs on a small scene, and bad input -> exit 2 with nothing left behind."""
 
-import json
-
 import cv2
 import numpy as np
 import pytest
 
 from kalmansfm.cli import main as cli
+from kalmansfm.io import read_summary
 from kalmansfm.io.tracks import read_tracks_npz
 from kalmansfm.scenes import render_scene
 
@@ -36,8 +35,7 @@ def test_writes_every_output(scene_folder, tmp_path, capsys):
     np.testing.assert_array_equal(tracks.track_ids, visible)
     error = np.linalg.norm(tracks.positions - scene.positions[:, visible], axis=2)
     assert np.nanmax(error) < 1.0
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["metrics"]["frames"] == 6
+    assert read_summary(out / "summary.json").tracking.frames == 6
     assert "tracked" in capsys.readouterr().out
 
 
@@ -47,7 +45,7 @@ def test_automatic_features_with_options(scene_folder, tmp_path):
     code = cli.main(["track", str(folder), "--out", str(out), "--max-features", "20", "--score", "ncc",
                      "--gate-radius", "3", "--window", "9", "--max-misses", "2", "--redetect", "--quiet"])
     assert code == 0
-    assert json.loads((out / "summary.json").read_text())["parameters"]["gate_radius"] == 3.0
+    assert read_summary(out / "summary.json").settings.effective_gate_radius == 3.0
 
 
 @pytest.mark.parametrize(

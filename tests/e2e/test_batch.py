@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from kalmansfm.batch import process_sequence, run_batch
+from kalmansfm.pipeline.batch import process_sequence, run_batch
 from kalmansfm.cli.main import main
 
 

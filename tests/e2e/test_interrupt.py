@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from kalmansfm import pipeline
+from kalmansfm.pipeline import demo as pipeline
 from kalmansfm.cli.main import main
 from kalmansfm.io.atomic import output_directory
 
@@ -26,7 +26,7 @@ def _snapshot(root: Path) -> dict[str, bytes]:
 def earlier_run(tmp_path_factory) -> Path:
     """A finished demo run (8 frames, no report) that a second run will try to replace."""
     out = tmp_path_factory.mktemp("interrupt") / "run"
-    pipeline.run_pipeline(out, n_frames=8, seed=3, html=False)
+    pipeline.run_demo(out, n_frames=8, seed=3, html=False)
     return out
 
 
@@ -40,7 +40,7 @@ def run_folder(earlier_run, tmp_path) -> Path:
     return copy
 
 
-@pytest.mark.parametrize("step", ["save_tracking", "save_structure", "factorize_tracks", "track"])
+@pytest.mark.parametrize("step", ["stage_tracking", "stage_structure", "factorize_tracks", "track"])
 def test_ctrl_c_inside_the_pipeline_keeps_the_earlier_results(step, run_folder, monkeypatch, capsys):
     before = _snapshot(run_folder)
 
@@ -62,7 +62,7 @@ def test_a_failure_while_writing_keeps_the_earlier_results(run_folder, monkeypat
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device", str(run_folder / "structure.csv"))
 
-    monkeypatch.setattr(pipeline, "save_structure", disk_full)
+    monkeypatch.setattr(pipeline, "stage_structure", disk_full)
     code = main(["demo", "--out", str(run_folder), "--frames", "5", "--seed", "1", "--quiet"])
     err = capsys.readouterr().err
     assert code == 2
@@ -71,7 +71,7 @@ def test_a_failure_while_writing_keeps_the_earlier_results(run_folder, monkeypat
 
 
 def test_ctrl_c_in_a_fresh_folder_leaves_nothing(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(pipeline, "save_structure", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    monkeypatch.setattr(pipeline, "stage_structure", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
     out = tmp_path / "new" / "run"
     assert main(["demo", "--out", str(out), "--frames", "5", "--quiet"]) == 130
     assert not (tmp_path / "new").exists()
@@ -100,15 +100,16 @@ def test_ctrl_c_during_the_renames_is_held_back_until_they_are_done(tmp_path, mo
 SLOW_WRITE = """
 import sys, time
 from pathlib import Path
-import kalmansfm.pipeline as pipeline
+import kalmansfm.pipeline.demo as pipeline
 from kalmansfm.cli.main import main
 
-real = pipeline.save_structure
-def slow_save_structure(out, *args, **kwargs):
-    real(out, *args, **kwargs)          # some new files are staged now
+real = pipeline.stage_structure
+def slow_stage_structure(out, *args, **kwargs):
+    names = real(out, *args, **kwargs)  # some new files are staged now
     Path(sys.argv[1]).write_text("writing")
     time.sleep(60)                      # ... and here comes Ctrl-C
-pipeline.save_structure = slow_save_structure
+    return names
+pipeline.stage_structure = slow_stage_structure
 sys.exit(main(["demo", "--out", sys.argv[2], "--frames", "5", "--seed", "1"]))
 """
 
@@ -138,11 +139,9 @@ def test_sigint_to_a_real_process_while_it_writes(run_folder, tmp_path):
 
 def test_ctrl_c_while_the_report_is_built_leaves_the_new_results_and_no_stale_report(run_folder, monkeypatch, capsys):
     """The results are committed before report.html is built; the earlier report must not stay beside them."""
-    from kalmansfm.report import html
-
     (run_folder / "report.html").write_text("<html>the earlier run's report</html>")
     before = _snapshot(run_folder)
-    monkeypatch.setattr(html, "build_report", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    monkeypatch.setattr(pipeline, "build_report", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
     code = main(["demo", "--out", str(run_folder), "--frames", "5", "--seed", "1", "--quiet"])
     err = capsys.readouterr().err
     assert code == 130

@@ -1,17 +1,16 @@
 """The whole job on the built-in scene: frames → tracks → structure → report, checked against ground truth."""
 
-import json
-
 import numpy as np
 import pytest
 
 from kalmansfm.cli.main import main
-from kalmansfm.pipeline import run_pipeline
+from kalmansfm.io import read_summary
+from kalmansfm.pipeline import run_demo
 
 
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory):
-    return run_pipeline(tmp_path_factory.mktemp("demo") / "run", seed=0, html=False)
+    return run_demo(tmp_path_factory.mktemp("demo") / "run", seed=0, html=False)
 
 
 def test_demo_writes_every_output_file(demo_run):
@@ -28,20 +27,21 @@ def test_demo_writes_every_output_file(demo_run):
 
 def test_demo_meets_the_tracking_and_shape_targets(demo_run):
     """Issue targets on the built-in scene: RMS ≤ 0.5 px, ≥ 97 % within 2 px, shape error ≤ 2 % of the radius."""
-    s = json.loads((demo_run.out_dir / "summary.json").read_text())
-    assert s["ground_truth"] is True
-    assert s["tracking"]["rms_error_px"] <= 0.5
-    assert s["tracking"]["within_2px"] >= 0.97
-    assert s["factorization"]["shape_error_pct"] <= 2.0
+    truth = read_summary(demo_run.out_dir / "summary.json").truth
+    assert truth is not None
+    assert truth.tracking_rms_error_px <= 0.5
+    assert truth.within_2px >= 0.97
+    assert truth.shape_error_pct <= 2.0
     # the recovered cameras turn like the true ones (a few degrees at most)
-    assert max(a for a in s["factorization"]["rotation_error_deg"] if a is not None) < 5.0
+    assert max(a for a in truth.rotation_error_deg if a is not None) < 5.0
 
 
 def test_summary_matches_the_returned_objects(demo_run):
     s = demo_run.summary
-    assert s["tracking"]["tracks"] == demo_run.tracks.track_ids.size
-    np.testing.assert_allclose(s["factorization"]["singular_values"], demo_run.reconstruction.singular_values)
-    assert len(s["tracking"]["per_track"]) == demo_run.tracks.track_ids.size
+    assert read_summary(demo_run.out_dir / "summary.json") == s
+    assert s.tracking.tracks == demo_run.tracks.track_ids.size
+    np.testing.assert_allclose(s.structure.singular_values, demo_run.reconstruction.singular_values[:10])
+    assert len(s.tracking.per_track) == demo_run.tracks.track_ids.size
 
 
 def test_demo_command_prints_the_summary_and_the_report_path(tmp_path, capsys):
@@ -63,9 +63,9 @@ def test_demo_on_a_real_sequence_has_no_ground_truth_section(tmp_path, capsys):
     for k in range(8):
         shutil.copy(source / f"house.seq{k}.png", frames / f"house.seq{k}.png")
     assert main(["demo", "--input", str(frames), "--out", str(tmp_path / "run"), "--quiet"]) == 0
-    s = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert s["ground_truth"] is False and s["tracking"]["rms_error_px"] is None
-    assert s["tracking"]["tracks"] >= 20
+    s = read_summary(tmp_path / "run" / "summary.json")
+    assert s.truth is None
+    assert s.tracking.tracks >= 20
     assert "within" not in capsys.readouterr().out
 
 

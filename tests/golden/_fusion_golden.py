@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from kalmansfm import fuse_recursive
-from kalmansfm.scenes.fusion_tasks import load_task
+from kalmansfm.experiments.fusion_tasks import load_task
 
 GOLDEN = Path(__file__).parent / "data"
 

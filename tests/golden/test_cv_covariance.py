@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from kalmansfm import KalmanFilter
-from kalmansfm.models import constant_velocity_2d
+from kalmansfm.estimation.models import constant_velocity_2d
 
 # (P[0,0], P[0,2], P[2,2]) after update 1, 2, ... as printed under Frame# 4, 5, ... of Point 1.
 PRINTED = [

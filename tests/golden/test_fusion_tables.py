@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from _fusion_golden import printed, rounding_margins
-from kalmansfm.scenes.fusion_tasks import load_task, run_task
+from kalmansfm.experiments.fusion_tasks import load_task, run_task
 
 TASKS = [1, 2, 3, 4, 5, 6]
 ROWS = {1: 30, 2: 20, 3: 20, 4: 20, 5: 20, 6: 24}

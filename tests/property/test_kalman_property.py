@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from kalmansfm import KalmanFilter
 from kalmansfm.estimation.kalman import kalman_update
-from kalmansfm.models import constant_velocity_2d
+from kalmansfm.estimation.models import constant_velocity_2d
 
 
 @st.composite

@@ -1,7 +1,7 @@
 """Fuzzing the file readers with hypothesis: any bytes or text either read or raise InvalidInputError.
 
 Readers: ``read_points_csv``, ``read_tracks_csv``, ``read_tracks_npz`` (io/tracks.py),
-``read_track_positions`` (io/track_table.py, CSV and NPZ), ``read_ground_truth_tracks``
+``read_tracks`` (any format), ``read_ground_truth_tracks``
 and ``read_ground_truth`` (io/ground_truth.py).  Every other exception type is a bug.
 Round trips check that what we write reads back unchanged.  The example counts are
 bounded so that the whole file runs in well under 20 s in CI.
@@ -20,8 +20,14 @@ from hypothesis import strategies as st
 
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.io.ground_truth import read_ground_truth, read_ground_truth_tracks
-from kalmansfm.io.track_table import read_track_positions
-from kalmansfm.io.tracks import read_points_csv, read_tracks_csv, read_tracks_npz, tracks_to_csv, write_tracks_npz
+from kalmansfm.io.tracks import (
+    read_points_csv,
+    read_tracks,
+    read_tracks_csv,
+    read_tracks_npz,
+    tracks_to_csv,
+    write_tracks_npz,
+)
 from kalmansfm.tracking.tracks import Tracks
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -38,7 +44,7 @@ any_text = st.one_of(csv_text, st.text(max_size=200))
 TEXT_READERS = {
     "points": read_points_csv,
     "tracks_csv": read_tracks_csv,
-    "track_table_csv": read_track_positions,
+    "tracks_any_csv": read_tracks,
     "ground_truth_tracks": read_ground_truth_tracks,
 }
 
@@ -103,20 +109,22 @@ def npz_bytes(draw) -> bytes:
 @given(data=st.one_of(npz_bytes(), st.binary(max_size=200)))
 def test_npz_readers_read_or_refuse_any_archive(data):
     path = _file("fuzz.npz", data)
-    _read_or_refuse(read_track_positions, path)
+    _read_or_refuse(read_tracks, path)
     _read_or_refuse(read_tracks_npz, path)
 
 
 @FUZZ
 @given(npz=npz_bytes())
 def test_npz_with_right_names_and_consistent_shapes_still_validates_values(npz):
-    """A well-formed tracks.npz with random values: read_track_positions keeps only status 1."""
+    """A well-formed tracks.npz with random values: the observations are the status-1 entries, finite."""
     path = _file("consistent.npz", npz)
-    result = _read_or_refuse(read_track_positions, path)
+    result = _read_or_refuse(read_tracks, path)
     if result is not None:
-        assert result.positions.ndim == 3 and result.positions.shape[2] == 2
-        observed = np.isfinite(result.positions).all(axis=2)
-        assert np.array_equal(observed, np.isfinite(result.positions).any(axis=2))
+        observations = result.observations()
+        assert observations.ndim == 3 and observations.shape[2] == 2
+        observed = np.isfinite(observations).all(axis=2)
+        assert np.array_equal(observed, np.isfinite(observations).any(axis=2))
+        assert np.array_equal(observed, result.status == 1)
 
 
 # --- round trips --------------------------------------------------------------------------------
@@ -145,16 +153,18 @@ def random_tracks(draw) -> Tracks:
 def test_tracks_csv_round_trip(tracks):
     path = _file("round.csv", tracks_to_csv(tracks).encode())
     if not (tracks.status != 0).any():
-        with pytest.raises(InvalidInputError, match="no tracks"):
+        with pytest.raises(InvalidInputError, match="no data rows"):
             read_tracks_csv(path)
         return
-    back = read_tracks_csv(path, n_frames=tracks.n_frames)
+    back = read_tracks_csv(path)
     present = np.isin(tracks.track_ids, back.track_ids)
+    rows = (tracks.status != 0).any(axis=1)  # frames with a row in the CSV
+    np.testing.assert_array_equal(back.frames, np.flatnonzero(rows))
     order = np.argsort(tracks.track_ids[present])
     np.testing.assert_array_equal(back.track_ids, tracks.track_ids[present][order])
-    np.testing.assert_array_equal(back.status, tracks.status[:, present][:, order])
-    np.testing.assert_allclose(back.states, tracks.states[:, present][:, order], atol=1e-6, equal_nan=True)
-    variances = np.diagonal(tracks.covariances[:, present][:, order][..., :2, :2], axis1=-2, axis2=-1)
+    np.testing.assert_array_equal(back.status, tracks.status[rows][:, present][:, order])
+    np.testing.assert_allclose(back.states, tracks.states[rows][:, present][:, order], atol=1e-6, equal_nan=True)
+    variances = np.diagonal(tracks.covariances[rows][:, present][:, order][..., :2, :2], axis1=-2, axis2=-1)
     np.testing.assert_allclose(np.diagonal(back.covariances[..., :2, :2], axis1=-2, axis2=-1), variances,
                                rtol=1e-5, equal_nan=True)
 
@@ -167,12 +177,12 @@ def test_tracks_npz_round_trip_and_factorization_view(tracks):
     back = read_tracks_npz(path)
     for name in ("positions", "states", "covariances", "status", "track_ids"):
         np.testing.assert_array_equal(getattr(back, name), getattr(tracks, name))
-    table = _read_or_refuse(read_track_positions, path)
-    if table is not None:  # only the measured entries, sorted by id
+    table = _read_or_refuse(read_tracks, path)
+    if table is not None:  # only the measured entries are observations; columns sorted by id
         order = np.argsort(tracks.track_ids)
         measured = (tracks.status == 1)[:, order]
-        np.testing.assert_array_equal(np.isfinite(table.positions[..., 0]), measured)
-        np.testing.assert_array_equal(table.positions[measured], tracks.positions[:, order][measured])
+        np.testing.assert_array_equal(np.isfinite(table.observations()[..., 0]), measured)
+        np.testing.assert_array_equal(table.observations()[measured], tracks.positions[:, order][measured])
 
 
 @settings(max_examples=40, deadline=None)
@@ -209,9 +219,9 @@ def test_track_table_csv_round_trip(seed, frames, count, holes):
     path = _file("table.csv", ("frame,track_id,x,y\n" + "\n".join(rows) + "\n").encode())
     if not rows:
         with pytest.raises(InvalidInputError, match="no data rows"):
-            read_track_positions(path)
+            read_tracks(path)
         return
-    table = read_track_positions(path)
+    table = read_tracks(path)
     kept_frames = np.isfinite(positions[..., 0]).any(axis=1)
     kept_ids = np.isfinite(positions[..., 0]).any(axis=0)
     np.testing.assert_array_equal(table.frames, np.flatnonzero(kept_frames))

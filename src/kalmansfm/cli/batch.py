@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..batch import check_sequence, run_batch
+from ..pipeline.batch import check_sequence, run_batch
 from ..errors import InvalidInputError
 
 

@@ -9,9 +9,9 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InvalidInputError
-from ..structure.consistency import ConsistencyResult, run_consistency
+from ..experiments.consistency import ConsistencyResult, run_consistency
+from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..structure.landmark import METHODS
-from ..structure.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 
 _AXES = {1: ["distance"], 3: ["x", "y", "z"]}
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import webbrowser
 
-from ..pipeline import describe, run_pipeline
+from ..pipeline import describe, run_demo
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -40,7 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and print a short summary."""
-    result = run_pipeline(
+    result = run_demo(
         args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet
     )
     print(describe(result))

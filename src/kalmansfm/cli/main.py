@@ -17,7 +17,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from .. import __version__
+from .._version import __version__
 from ..errors import KalmanSfmError, ReportInterrupted
 
 # Order shown in --help.

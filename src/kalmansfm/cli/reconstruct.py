@@ -3,19 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
-import logging
 from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..errors import InvalidInputError
-from ..io.atomic import check_output_directory, output_directory
-from ..pipeline import read_tracks_for_factorization, save_structure
-from ..structure.factorization import factorize
-
-log = logging.getLogger("kalmansfm")
+from ..pipeline import run_reconstruct
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -51,41 +44,18 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 def run(args: argparse.Namespace) -> int:
     if args.max_iterations < 1:
         raise InvalidInputError(f"--max-iterations must be >= 1; got {args.max_iterations}")
-    check_output_directory(args.out)
-    tracks = read_tracks_for_factorization(args.tracks, smooth=args.smooth)
-    weights = None if args.no_weights else tracks.weights
-    log.info("read %d frames x %d tracks from %s", *tracks.positions.shape[:2], args.tracks)
-    result = factorize(tracks.positions, weights=weights, max_iterations=args.max_iterations)
-    summary = {
-        "command": "reconstruct",
-        "version": __version__,
-        "tracks": str(args.tracks),
-        "weighted": weights is not None,
-        "smoothed": tracks.smoothed,
-        "frames": int(tracks.positions.shape[0]),
-        "points": int(tracks.positions.shape[1]),
-        "method": result.method,
-        "iterations": result.iterations,
-        "singular_values": [float(s) for s in result.singular_values[:10]],
-        "residual_rms_px": result.residual_rms,
-        "reconstructed_points": int(np.isfinite(result.points).all(axis=1).sum()),
-        "reconstructed_frames": int(np.isfinite(result.motion).all(axis=(1, 2)).sum()),
-        "warnings": list(result.warnings),
-    }
-    with output_directory(args.out) as out:
-        save_structure(
-            out, result, tracks.track_ids, frames=tracks.frames, title=f"Recovered shape: {args.tracks.name}",
-            comment=f"kalmansfm {__version__} from {args.tracks.name}", plot=not args.no_plot,
-        )
-        out.write_text("summary.json", json.dumps(summary, indent=2) + "\n")
-    shown = np.array2string(result.singular_values[:6], precision=4, separator=", ")
-    print(f"frames: {summary['frames']}  tracks: {summary['points']}  method: {result.method}"
-          + (f" ({result.iterations} iterations)" if result.method == "als" else "")
-          + ("  weighted by tracker std" if weights is not None else "")
-          + ("  smoothed" if tracks.smoothed is not False else ""))
+    result = run_reconstruct(args.tracks, args.out, weighted=not args.no_weights, smooth=args.smooth,
+                             max_iterations=args.max_iterations, plot=not args.no_plot)
+    s, r = result.summary.structure, result.reconstruction
+    assert s is not None  # run_reconstruct always records its structure
+    shown = np.array2string(r.singular_values[:6], precision=4, separator=", ")
+    print(f"frames: {s.frames}  tracks: {s.points}  method: {s.method}"
+          + (f" ({s.iterations} iterations)" if s.method == "als" else "")
+          + ("  weighted by tracker std" if s.weighted else "")
+          + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")
-    print(f"rank-3 residual: {result.residual_rms:.4f} px RMS")
-    for note in result.warnings:
+    print(f"rank-3 residual: {s.residual_rms_px:.4f} px RMS")
+    for note in s.warnings:
         print(f"warning: {note}")
     print(f"wrote {args.out}")
     return 0

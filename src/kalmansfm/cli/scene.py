@@ -6,6 +6,8 @@ import argparse
 import logging
 
 from ..errors import InvalidInputError
+from ..pipeline import run_scene
+from ..scenes import Occluder
 
 log = logging.getLogger("kalmansfm")
 
@@ -68,9 +70,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.ground_truth import write_scene
-    from ..scenes import Occluder, render_scene
-
     width, height = args.size
     if width <= 0 or height <= 0:
         raise InvalidInputError(f"--size must be positive; got {width}x{height}")
@@ -80,19 +79,8 @@ def run(args: argparse.Namespace) -> int:
         occluder = Occluder(track_id=track_id, first_frame=first_frame, n_frames=n_frames, marker=args.occluder_marker)
     elif args.occluder_marker:
         raise InvalidInputError("--occluder-marker needs --occluder")
-    from ..io.atomic import check_output_directory
-
-    check_output_directory(args.out)
-    # rendering validates every option before the output folder is touched
-    scene = render_scene(
-        n_frames=args.frames,
-        image_size=(width, height),
-        seed=args.seed,
-        pixel_noise_std=args.noise,
-        occluder=occluder,
-        scenario=args.scenario,
-    )
-    files = write_scene(scene, args.out)
+    scene, files = run_scene(args.out, n_frames=args.frames, image_size=(width, height), seed=args.seed,
+                             pixel_noise_std=args.noise, occluder=occluder, scenario=args.scenario)
     log.info("wrote %d frames and the ground truth to %s", scene.n_frames, args.out)
     print(f"{args.out}: {len(files)} files ({scene.n_frames} frames {width}x{height}, {len(scene.track_ids)} corners)")
     return 0

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from ..errors import InvalidInputError
+from ..experiments import available_tasks, fusion_table
+from ..experiments.tables import SIMULATED_TASK
+from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..report.tables import format_csv, format_text
-from ..scenes.fusion_tasks import available_tasks, run_task
-from .task7 import add_task7_options, run_task7
-
-SIMULATED_TASK = 7
+from ..structure.landmark import METHODS
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -37,18 +36,26 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.set_defaults(run=run)
 
 
+def add_task7_options(parser: argparse.ArgumentParser) -> None:
+    """Add the Task 7 simulation options to ``parser``."""
+    group = parser.add_argument_group("task 7 (simulated structure from a moving camera)")
+    group.add_argument(
+        "--method",
+        choices=METHODS,
+        default="pairs",
+        help="pairs: the report's Kalman fusion of consecutive-pair triangulations; "
+        "batch: Gauss-Newton maximum likelihood on all images so far (consistent)",
+    )
+    group.add_argument("--seed", type=int, default=0, help="seed of the simulated image noise")
+    group.add_argument("--focal", type=float, default=DEFAULT_FOCAL, help="focal length, pixels")
+    group.add_argument(
+        "--pixel-noise", type=float, default=DEFAULT_PIXEL_NOISE_STD, help="image noise standard deviation, pixels"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     """Compute the table and print it to stdout."""
-    published = available_tasks()
-    if args.task == SIMULATED_TASK:
-        table = run_task7(args)
-    elif args.task in published:
-        table = run_task(args.task)
-    else:
-        raise InvalidInputError(
-            f"unknown task {args.task}; tasks {published[0]}-{published[-1]} (published tables) "
-            f"and {SIMULATED_TASK} (simulated moving camera) are available"
-        )
+    table = fusion_table(args.task, method=args.method, seed=args.seed, focal=args.focal, pixel_noise_std=args.pixel_noise)
     text = format_csv(table) if args.format == "csv" else format_text(table)
     print(text, end="" if text.endswith("\n") else "\n")
     return 0

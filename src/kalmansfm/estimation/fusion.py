@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
-from ._checks import as_float_array, check_covariance, check_finite
+from .._validation import as_float_array, check_covariance, check_finite
 from .kalman import KalmanFilter
 
 __all__ = ["FusionResult", "fuse_recursive", "fuse_closed_form"]

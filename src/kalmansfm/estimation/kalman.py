@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, SingularCovarianceError
 from . import _decoupled
-from ._checks import as_float_array, check_covariance, check_finite, check_shape
+from .._validation import as_float_array, check_covariance, check_finite, check_shape
 from .smoothing import FilterRun
 
 __all__ = [
@@ -424,7 +424,7 @@ class KalmanFilter:
       one n×n update, not 100 000; ``P`` still shows shape (N, n, n) (a read-only
       broadcast view);
     * when F is the constant-velocity transition and Q, R, P do not couple x with
-      y (the model of :func:`~kalmansfm.models.constant_velocity_2d`), the filter
+      y (the model of :func:`~kalmansfm.estimation.constant_velocity_2d`), the filter
       runs as two 2-state filters with a scalar measurement, storing three
       numbers per covariance block (one block for x and y while their histories
       agree) and updating them elementwise; ``P`` is then assembled as
@@ -433,7 +433,7 @@ class KalmanFilter:
     Examples
     --------
     >>> import numpy as np
-    >>> from kalmansfm.models import constant_velocity_2d
+    >>> from kalmansfm.estimation import constant_velocity_2d
     >>> model = constant_velocity_2d()
     >>> kf = KalmanFilter(np.zeros((3, 4)), model.P0, model.F, model.H, model.Q, model.R)
     >>> kf.predict()
@@ -860,7 +860,7 @@ class KalmanFilter:
         Examples
         --------
         >>> import numpy as np
-        >>> from kalmansfm.models import constant_velocity_2d
+        >>> from kalmansfm.estimation import constant_velocity_2d
         >>> m = constant_velocity_2d()
         >>> kf = KalmanFilter(np.zeros((2, 4)), m.P0, m.F, m.H, m.Q, m.R)
         >>> run = kf.run(np.zeros((10, 2, 2)))

@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import as_float_array, check_positive, check_shape
+from .._validation import as_float_array, check_positive, check_shape
 
 __all__ = ["LinearGaussianModel", "constant_velocity_2d", "initial_state"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LinearGaussianModel:
     """A linear-Gaussian state-space model and its initial covariance.
 
@@ -37,6 +37,14 @@ class LinearGaussianModel:
 
     def __iter__(self):  # allows ``F, H, Q, R, P0 = constant_velocity_2d()``
         return iter((self.F, self.H, self.Q, self.R, self.P0))
+
+    def __eq__(self, other: object) -> bool:
+        """Two models are equal when all their matrices are (so settings holding models compare)."""
+        if not isinstance(other, LinearGaussianModel):
+            return NotImplemented
+        return all(np.array_equal(a, b) for a, b in zip(self, other))
+
+    __hash__ = None  # type: ignore[assignment]  # the matrices are mutable arrays
 
 
 def constant_velocity_2d(

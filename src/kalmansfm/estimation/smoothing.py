@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError, SingularCovarianceError
-from ._checks import as_float_array, check_shape
+from .._validation import as_float_array, check_shape
 
 __all__ = ["FilterRun", "SmoothedRun", "smooth"]
 
@@ -181,7 +181,7 @@ def smooth(run: FilterRun, lag: int | None = None) -> SmoothedRun:
     --------
     >>> import numpy as np
     >>> from kalmansfm import KalmanFilter
-    >>> from kalmansfm.models import constant_velocity_2d
+    >>> from kalmansfm.estimation import constant_velocity_2d
     >>> m = constant_velocity_2d()
     >>> kf = KalmanFilter(np.zeros((5, 4)), m.P0, m.F, m.H, m.Q, m.R)
     >>> zs = np.random.default_rng(0).normal(size=(20, 5, 2))

@@ -1,4 +1,4 @@
-"""Frames in: a folder of images, a glob pattern, or a video file, as grey arrays.
+"""Frames in (a folder of images, a glob pattern, or a video file, as grey arrays) and frames out (PNG files of a run).
 
 :func:`read_frames` checks what it can up front (the path exists, the folder holds
 images, there are enough of them) and returns a :class:`FrameSource` that decodes
@@ -21,8 +21,18 @@ import cv2
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
+from .atomic import OutputDirectory
 
-__all__ = ["IMAGE_EXTENSIONS", "FrameSource", "list_image_files", "natural_key", "read_frames"]
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "FrameSource",
+    "encode_png",
+    "frame_name",
+    "list_image_files",
+    "natural_key",
+    "read_frames",
+    "stage_frames",
+]
 
 IMAGE_EXTENSIONS = frozenset({".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff"})
 MIN_FRAMES = 3
@@ -248,3 +258,33 @@ def read_frames(source: str | os.PathLike[str], min_frames: int = MIN_FRAMES) ->
     if len(files) < min_frames:
         raise NotEnoughDataError(f"{description} holds {len(files)} image(s); tracking needs at least {min_frames} frames")
     return FrameSource(description=description, files=tuple(files), count=len(files))
+
+
+def frame_name(index: int, n_frames: int) -> str:
+    """File name of frame ``index`` in a sequence of ``n_frames`` (at least three digits).
+
+    Examples
+    --------
+    >>> frame_name(7, 30), frame_name(7, 5000)
+    ('frame_007.png', 'frame_0007.png')
+    """
+    digits = max(3, len(str(max(n_frames - 1, 0))))
+    return f"frame_{index:0{digits}d}.png"
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """A grey or BGR image as PNG bytes (values outside 0-255 are clipped)."""
+    if image.dtype != np.uint8:
+        image = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    ok, png = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 grey or BGR image
+        raise RuntimeError("could not encode a frame as PNG")
+    return png.tobytes()
+
+
+def stage_frames(out: OutputDirectory, frames: list[np.ndarray], folder: str = "") -> list[str]:
+    """Stage ``frames`` as ``folder/frame_NNN.png`` files; returns their names."""
+    names = [f"{folder}{frame_name(f, len(frames))}" for f in range(len(frames))]
+    for name, frame in zip(names, frames):
+        out.write_bytes(name, encode_png(np.asarray(frame)))
+    return names

@@ -1,6 +1,6 @@
-"""Ground-truth files of a synthetic scene: writing a :class:`~kalmansfm.scenes.Scene` and reading it back.
+"""Ground-truth files of a run or a scene folder: their schema, writer and reader.
 
-A scene folder holds ``frame_000.png …`` and
+A folder with ground truth holds
 
 ``ground_truth_tracks.csv``
     ``frame,track_id,x,y,visible``: every corner in every frame (x = column,
@@ -17,30 +17,22 @@ A scene folder holds ``frame_000.png …`` and
 ``ground_truth_occluder.csv`` (only with an occluder)
     ``frame,x0,y0,x1,y1,marker_x,marker_y``: the card's rectangle and the
     centre of its marker (empty without one).
-``summary.json``
-    The parameters used to render.
 """
 
 from __future__ import annotations
 
 import csv
-import json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from ..errors import InvalidInputError
-from .atomic import output_directory
+from .tracks import MAX_INDEX
 
-if TYPE_CHECKING:
-    from ..scenes.polyhedron import Scene
-
-__all__ = ["GroundTruth", "write_scene", "read_ground_truth", "read_ground_truth_tracks", "frame_name"]
+__all__ = ["GroundTruth", "ground_truth_files", "read_ground_truth", "read_ground_truth_tracks", "GROUND_TRUTH_FILES"]
 
 TRACKS_FILE = "ground_truth_tracks.csv"
 POINTS_FILE = "ground_truth_points.csv"
@@ -48,6 +40,8 @@ MOTION_FILE = "ground_truth_motion.csv"
 OCCLUDER_FILE = "ground_truth_occluder.csv"
 START_POINTS_FILE = "points.csv"
 MOTION_COLUMNS = ["frame", "r11", "r12", "r13", "r21", "r22", "r23", "t_x", "t_y", "scale"]
+#: Every file name this module writes.
+GROUND_TRUTH_FILES = (TRACKS_FILE, POINTS_FILE, MOTION_FILE, OCCLUDER_FILE, START_POINTS_FILE)
 
 
 @dataclass(frozen=True)
@@ -67,6 +61,10 @@ class GroundTruth:
         First two rows of each frame's rotation.
     translations : (F, 2) float64 or None
     scales : (F,) float64 or None
+    occluder_boxes : (F, 4) float64 or None
+        An occluding card's rectangle ``x0, y0, x1, y1`` per frame (NaN where there is none).
+    occluder_markers : (F, 2) float64 or None
+        Centre of the card's own marker (NaN without one).
     """
 
     track_ids: np.ndarray
@@ -76,18 +74,17 @@ class GroundTruth:
     rotation_rows: np.ndarray | None = None
     translations: np.ndarray | None = None
     scales: np.ndarray | None = None
+    occluder_boxes: np.ndarray | None = None
+    occluder_markers: np.ndarray | None = None
 
-
-def frame_name(index: int, n_frames: int) -> str:
-    """File name of frame ``index`` in a sequence of ``n_frames`` (at least three digits).
-
-    Examples
-    --------
-    >>> frame_name(7, 30), frame_name(7, 5000)
-    ('frame_007.png', 'frame_0007.png')
-    """
-    digits = max(3, len(str(max(n_frames - 1, 0))))
-    return f"frame_{index:0{digits}d}.png"
+    def aligned_to(self, track_ids: np.ndarray) -> np.ndarray:
+        """(F, P, 2) the true positions of the tracks ``track_ids`` (P,), NaN where not visible or unknown."""
+        index = np.searchsorted(self.track_ids, track_ids)
+        index = np.minimum(index, max(len(self.track_ids) - 1, 0))
+        known = (len(self.track_ids) > 0) & (self.track_ids[index] == track_ids)
+        truth = np.full((self.positions.shape[0], len(track_ids), 2), np.nan)
+        truth[:, known] = np.where(self.visible[:, index[known], None], self.positions[:, index[known]], np.nan)
+        return truth
 
 
 def _csv_text(header: list[str], rows: Iterable[Iterable[object]]) -> str:
@@ -101,87 +98,46 @@ def _number(value: float) -> str:
     return "" if not np.isfinite(value) else repr(float(value))
 
 
-def scene_files(scene: Scene, *, frames: bool = True) -> dict[str, bytes | str]:
-    """The files of a scene folder by name: frame PNGs (bytes) and ground-truth CSVs (text).
+def ground_truth_files(truth: GroundTruth) -> dict[str, str]:
+    """The ground-truth CSV texts of ``truth`` by file name (see the module notes).
 
-    ``frames=False`` leaves the PNGs out (the ground truth alone).
+    Numbers are written at full (round-trip) precision, so the ground truth stays exact.
+    The 3D points, the motion and the occluder are written when ``truth`` has them.
     """
-    n_frames, n_points = scene.visible.shape
-    files: dict[str, bytes | str] = {}
-    if frames:
-        for f in range(n_frames):
-            ok, png = cv2.imencode(".png", scene.frames[f])
-            if not ok:  # pragma: no cover - OpenCV always encodes uint8 grey images
-                raise RuntimeError(f"could not encode frame {f} as PNG")
-            files[frame_name(f, n_frames)] = png.tobytes()
-    ids = scene.track_ids
+    n_frames, n_points = truth.visible.shape
+    ids = truth.track_ids
     tracks = (
-        (f, int(ids[p]), _number(scene.positions[f, p, 0]), _number(scene.positions[f, p, 1]), int(scene.visible[f, p]))
+        (f, int(ids[p]), _number(truth.positions[f, p, 0]), _number(truth.positions[f, p, 1]), int(truth.visible[f, p]))
         for f in range(n_frames)
         for p in range(n_points)
-    )
-    points = ((int(ids[p]), *(_number(v) for v in scene.points_3d[p])) for p in range(n_points))
-    motion = (
-        (f, *(_number(v) for v in scene.rotations[f, :2].ravel()), *(_number(v) for v in scene.translations[f]),
-         _number(scene.scale))
-        for f in range(n_frames)
     )
     start = (
-        (int(ids[p]), _number(scene.positions[0, p, 0]), _number(scene.positions[0, p, 1]))
+        (int(ids[p]), _number(truth.positions[0, p, 0]), _number(truth.positions[0, p, 1]))
         for p in range(n_points)
-        if scene.visible[0, p]
+        if truth.visible[0, p]
     )
-    files[TRACKS_FILE] = _csv_text(["frame", "track_id", "x", "y", "visible"], tracks)
-    files[POINTS_FILE] = _csv_text(["track_id", "X", "Y", "Z"], points)
-    files[MOTION_FILE] = _csv_text(MOTION_COLUMNS, motion)
-    files[START_POINTS_FILE] = _csv_text(["track_id", "x", "y"], start)
-    if scene.occluder_boxes is not None and np.isfinite(scene.occluder_boxes).any():
-        marker = (
-            scene.occluder_marker_positions
-            if scene.occluder_marker_positions is not None
-            else np.full((n_frames, 2), np.nan)
-        )
-        rows = (
-            (f, *(_number(v) for v in scene.occluder_boxes[f]), *(_number(v) for v in marker[f]))
+    files = {
+        TRACKS_FILE: _csv_text(["frame", "track_id", "x", "y", "visible"], tracks),
+        START_POINTS_FILE: _csv_text(["track_id", "x", "y"], start),
+    }
+    if truth.points_3d is not None:
+        points = ((int(ids[p]), *(_number(v) for v in truth.points_3d[p])) for p in range(n_points))
+        files[POINTS_FILE] = _csv_text(["track_id", "X", "Y", "Z"], points)
+    if truth.rotation_rows is not None and truth.translations is not None and truth.scales is not None:
+        motion = (
+            (f, *(_number(v) for v in truth.rotation_rows[f].ravel()), *(_number(v) for v in truth.translations[f]),
+             _number(truth.scales[f]))
             for f in range(n_frames)
         )
-        header = ["frame", "x0", "y0", "x1", "y1", "marker_x", "marker_y"]
-        files[OCCLUDER_FILE] = _csv_text(header, rows)
+        files[MOTION_FILE] = _csv_text(MOTION_COLUMNS, motion)
+    if truth.occluder_boxes is not None and np.isfinite(truth.occluder_boxes).any():
+        marker = truth.occluder_markers if truth.occluder_markers is not None else np.full((n_frames, 2), np.nan)
+        rows = (
+            (f, *(_number(v) for v in truth.occluder_boxes[f]), *(_number(v) for v in marker[f]))
+            for f in range(n_frames)
+        )
+        files[OCCLUDER_FILE] = _csv_text(["frame", "x0", "y0", "x1", "y1", "marker_x", "marker_y"], rows)
     return files
-
-
-def write_scene(scene: Scene, path: str | os.PathLike[str]) -> list[Path]:
-    """Write a scene's frames as PNG and its ground truth as CSV into the folder ``path``.
-
-    The files appear together or not at all (see :func:`kalmansfm.io.output_directory`).
-
-    Returns
-    -------
-    list of Path
-        The files written.
-
-    Examples
-    --------
-    >>> import tempfile, pathlib
-    >>> from kalmansfm.scenes import render_scene
-    >>> folder = pathlib.Path(tempfile.mkdtemp()) / "scene"
-    >>> files = write_scene(render_scene(n_frames=3, pixel_noise_std=0.0), folder)
-    >>> sorted(p.name for p in files)[:4]
-    ['frame_000.png', 'frame_001.png', 'frame_002.png', 'ground_truth_motion.csv']
-    >>> read_ground_truth(folder).positions.shape
-    (3, 10, 2)
-    """
-    from .. import __version__
-
-    files = scene_files(scene)
-    summary = {"command": "scene", "kalmansfm_version": __version__, "parameters": scene.parameters}
-    with output_directory(path) as out:
-        written = [
-            out.write_bytes(name, data) if isinstance(data, bytes) else out.write_text(name, data)
-            for name, data in files.items()
-        ]
-        written.append(out.write_text("summary.json", json.dumps(summary, indent=2) + "\n"))
-    return written
 
 
 def _read_table(path: Path, required: list[str]) -> dict[str, np.ndarray]:
@@ -214,10 +170,6 @@ def _read_table(path: Path, required: list[str]) -> dict[str, np.ndarray]:
         raise InvalidInputError(f"{path}: not a readable CSV file ({exc})") from None
     table = np.array(rows, dtype=np.float64).reshape(len(rows), len(header))
     return {name: table[:, k] for k, name in enumerate(header)}
-
-
-# Frame numbers and track ids index dense arrays: refuse numbers that would need absurd memory.
-MAX_INDEX = 10_000_000
 
 
 def _as_index(values: np.ndarray, path: Path, column: str) -> np.ndarray:

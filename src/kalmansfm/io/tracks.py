@@ -1,16 +1,27 @@
-"""Tracks out and back in: ``tracks.csv`` (long format) and ``tracks.npz`` (arrays), plus points CSVs.
+"""Tracks out and back in: ``tracks.csv`` (long format), ``tracks.npz`` (arrays), and start-point CSVs.
 
 ``tracks.csv`` has one row per (frame, track) while the track exists::
 
     frame,track_id,x,y,vx,vy,std_x,std_y,status
 
 with ``status`` one of ``measured``, ``predicted`` (coasting: x, y are the
-prediction) and ``lost`` (the frame of the loss; the numbers are empty).
-``tracks.npz`` holds ``positions (F,P,2)``, ``states (F,P,4)``,
-``covariances (F,P,4,4)``, ``status (F,P)`` int8 (0 none, 1 measured,
-2 predicted, 3 lost) and ``track_ids (P,)``, plus ``scores``, ``image_size`` and
-``parameters`` (the tracker's options as a JSON string, e.g. its noise levels and
-whether the tracks were smoothed).
+prediction) and ``lost`` (the frame of the loss; the numbers are empty).  Other tools
+give less, and :func:`read_tracks` accepts any CSV with at least ``frame,track_id,x,y``:
+``vx,vy`` (velocities), ``std_x,std_y`` (position standard deviations) and ``status``
+are optional, every row without a status is a measurement, and lines starting with
+``#`` are comments.
+
+``tracks.npz`` holds ``positions (F,P,2)``, ``status (F,P)`` int8
+(:class:`~kalmansfm.tracking.tracks.TrackStatus` values), ``track_ids (P,)`` and
+optionally ``states (F,P,4)``, ``covariances (F,P,4,4)``, ``frames (F,)``, ``scores (F,P)``,
+``image_size`` (width, height) and ``meta``: a JSON object with the schema version, the
+tracker's settings (:class:`~kalmansfm.tracking.settings.TrackerSettings`) and whether
+the tracks are smoothed.
+
+Every reader returns :class:`~kalmansfm.tracking.tracks.Tracks`; :func:`read_tracks` (any
+format) puts the track ids in ascending order, :func:`read_tracks_npz` keeps the file's
+column order.  They report every problem as an :class:`~kalmansfm.InvalidInputError`
+naming the file and the line (CSV) or the array entry (NPZ).
 """
 
 from __future__ import annotations
@@ -24,16 +35,33 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..tracking.settings import TrackerSettings
+from ..tracking.tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks, TrackStatus
 from .npz import load_npz
-from ..tracking.tracks import LOST, MEASURED, NO_TRACK, PREDICTED, Tracks
+from .records import from_json, to_json
 
-__all__ = ["read_points_csv", "read_tracks_csv", "read_tracks_npz", "tracks_to_csv", "write_tracks_csv", "write_tracks_npz"]
+__all__ = [
+    "MAX_INDEX",
+    "TRACK_CSV_COLUMNS",
+    "check_points_inside",
+    "read_points_csv",
+    "read_tracks",
+    "read_tracks_csv",
+    "read_tracks_npz",
+    "tracks_to_csv",
+    "write_tracks_csv",
+    "write_tracks_npz",
+]
 
-# Frame numbers index a dense (frames, tracks, 4, 4) array: refuse numbers that would need absurd memory.
-MAX_FRAMES = 1_000_000
-CSV_COLUMNS = ("frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y", "status")
-_WORDS = {MEASURED: "measured", PREDICTED: "predicted", LOST: "lost"}
-_CODES = {word: code for code, word in _WORDS.items()}
+#: Frame numbers and track ids index dense arrays: larger numbers are refused (they would need absurd memory).
+MAX_INDEX = 10_000_000
+#: The columns of the tracker's ``tracks.csv``.
+TRACK_CSV_COLUMNS = ("frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y", "status")
+_REQUIRED = ("frame", "track_id", "x", "y")
+_NPZ_SCHEMA = 1
+
+
+# --- writing --------------------------------------------------------------------------------
 
 
 def _number(value: float) -> str:
@@ -41,7 +69,7 @@ def _number(value: float) -> str:
 
 
 def tracks_to_csv(tracks: Tracks) -> str:
-    """The long-format CSV text of ``tracks``.
+    """The long-format CSV text of ``tracks`` (needs their states and covariances).
 
     Examples
     --------
@@ -53,26 +81,26 @@ def tracks_to_csv(tracks: Tracks) -> str:
     0,0,1.5,2,0.5,0,2,2,measured
     1,0,,,,,,,lost
     """
-    frames, cols = np.nonzero(tracks.status != NO_TRACK)
-    order = np.lexsort((cols, frames))
-    frames, cols = frames[order], cols[order]
-    states = tracks.states[frames, cols]
-    std = np.sqrt(np.diagonal(tracks.covariances[frames, cols][:, :2, :2], axis1=1, axis2=2))
-    status = tracks.status[frames, cols]
+    if tracks.states is None or tracks.position_std is None:
+        raise InvalidInputError("tracks.csv needs the tracks' states and covariances")
+    rows, cols = np.nonzero(tracks.status != NO_TRACK)
+    order = np.lexsort((cols, rows))
+    rows, cols = rows[order], cols[order]
+    status = tracks.status[rows, cols]
+    values = np.concatenate([tracks.states[rows, cols], tracks.position_std[rows, cols]], axis=1)
+    values[status == LOST] = np.nan
+    words = np.array([s.label for s in TrackStatus])[status]
     out = io.StringIO()
-    out.write(",".join(CSV_COLUMNS) + "\n")
-    ids = tracks.track_ids[cols]
-    for f, i, s, sd, code in zip(frames.tolist(), ids.tolist(), states, std, status.tolist()):
-        if code == LOST:
-            s = np.full(4, np.nan)
-            sd = np.full(2, np.nan)
-        values = ",".join(_number(v) for v in (*s, *sd))
-        out.write(f"{f},{i},{values},{_WORDS[code]}\n")
+    out.write(",".join(TRACK_CSV_COLUMNS) + "\n")
+    frames = tracks.frames[rows].tolist()  # type: ignore[index]
+    ids = tracks.track_ids[cols].tolist()
+    for f, i, v, word in zip(frames, ids, values.tolist(), words.tolist()):
+        out.write(f"{f},{i},{','.join(_number(x) for x in v)},{word}\n")
     return out.getvalue()
 
 
 def write_tracks_csv(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
-    """Write ``tracks.csv`` (see the module docs) to ``path``."""
+    """Write ``tracks.csv`` (see the module notes) to ``path``."""
     path = Path(path)
     path.write_text(tracks_to_csv(tracks), encoding="utf-8")
     return path
@@ -81,97 +109,264 @@ def write_tracks_csv(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
 def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
     """Write the arrays of ``tracks`` to a compressed ``.npz`` file at ``path``."""
     path = Path(path)
-    extra = {} if tracks.scores is None else {"scores": tracks.scores}
+    arrays = {
+        "positions": tracks.positions,
+        "status": tracks.status.astype(np.int8),
+        "track_ids": tracks.track_ids.astype(np.int64),
+        "frames": tracks.frames,
+    }
+    for name in ("states", "covariances", "scores"):
+        if getattr(tracks, name) is not None:
+            arrays[name] = getattr(tracks, name)
     if tracks.image_size is not None:
-        extra["image_size"] = np.asarray(tracks.image_size, dtype=np.int64)
-    if tracks.parameters:
-        extra["parameters"] = np.array(json.dumps(tracks.parameters, default=str))
+        arrays["image_size"] = np.asarray(tracks.image_size, dtype=np.int64)
+    meta = {"schema_version": _NPZ_SCHEMA, "settings": to_json(tracks.settings), "smoothed": tracks.smoothed}
+    arrays["meta"] = np.array(json.dumps(meta))
     with open(path, "wb") as handle:
-        np.savez_compressed(
-            handle,
-            positions=tracks.positions,
-            states=tracks.states,
-            covariances=tracks.covariances,
-            status=tracks.status.astype(np.int8),
-            track_ids=tracks.track_ids.astype(np.int64),
-            **extra,
-        )
+        np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]
     return path
 
 
-def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
-    """Read a file written by :func:`write_tracks_npz`."""
-    path = Path(path)
-    arrays = load_npz(path)
-    missing = {"positions", "states", "covariances", "status", "track_ids"} - set(arrays)
+# --- reading --------------------------------------------------------------------------------
+
+
+def read_tracks(path: str | os.PathLike[str]) -> Tracks:
+    """Read tracks from a ``.npz`` or a CSV file (see the module notes), track ids ascending.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = f.write_text("frame,track_id,x,y\\n0,7,1.5,2.0\\n1,7,2.5,2.0\\n1,9,4.0,1.0\\n")
+    >>> t = read_tracks(f)
+    >>> t.positions.shape, t.track_ids.tolist(), t.frames.tolist()
+    ((2, 2, 2), [7, 9], [0, 1])
+    >>> t.observations()[0, 1]
+    array([nan, nan])
+    """
+    file = Path(path)
+    if not file.is_file():
+        raise InvalidInputError(f"{file}: no such file")
+    if file.suffix.lower() != ".npz":
+        return read_tracks_csv(file)
+    tracks = read_tracks_npz(file)
+    order = np.argsort(tracks.track_ids, kind="stable")
+    if np.array_equal(order, np.arange(tracks.n_tracks)):
+        return tracks
+    columns = {name: getattr(tracks, name)[:, order] for name in ("positions", "status", "states", "covariances", "scores")
+               if getattr(tracks, name) is not None}
+    return tracks.replace(track_ids=tracks.track_ids[order], **columns)
+
+
+def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
+    """Read a tracks CSV: the tracker's ``tracks.csv`` or any CSV with ``frame,track_id,x,y``.
+
+    Without a ``std_x,std_y`` pair the tracks have no covariances; without ``vx,vy`` no states.
+    """
+    file = Path(path)
+    try:
+        with open(file, newline="", encoding="utf-8-sig") as handle:
+            numbered = [(n, row) for n, row in enumerate(csv.reader(handle), start=1) if row and not row[0].lstrip().startswith("#")]
+    except FileNotFoundError:
+        raise InvalidInputError(f"{file}: no such file") from None
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{file}: not a text CSV file") from None
+    except (OSError, csv.Error) as exc:
+        raise InvalidInputError(f"{file}: not a readable CSV file ({exc})") from None
+    if not numbered:
+        raise InvalidInputError(f"{file}: empty file; expected a header with columns {','.join(_REQUIRED)}")
+    header_line, header = numbered[0]
+    header = [h.strip() for h in header]
+    missing = [c for c in _REQUIRED if c not in header]
     if missing:
-        raise InvalidInputError(f"{path} lacks the arrays {sorted(missing)}")
-    for name in ("positions", "states", "covariances", "scores"):
-        if name in arrays and arrays[name].dtype.kind not in "fiub":
-            raise InvalidInputError(f"{path}: {name} must be a real numeric array; got dtype {arrays[name].dtype}")
-    for name in ("status", "track_ids"):
-        if arrays[name].dtype.kind not in "iub":
-            raise InvalidInputError(f"{path}: {name} must be an integer array; got dtype {arrays[name].dtype}")
+        raise InvalidInputError(f"{file}: line {header_line}: header lacks column(s) {', '.join(missing)}; got {','.join(header)}")
+    rows = numbered[1:]
+    if not rows:
+        raise InvalidInputError(f"{file}: no data rows after the header")
+    column = {name: i for i, name in enumerate(header)}
+    for n, row in rows:
+        if len(row) != len(header):
+            raise InvalidInputError(f"{file}: line {n}: {len(row)} fields, header has {len(header)}")
+    lines = np.array([n for n, _ in rows])
+    table = np.array([row for _, row in rows], dtype=object)
+
+    if "status" in column:
+        words = [w.strip() for w in table[:, column["status"]].tolist()]
+        known = {s.label: int(s) for s in (MEASURED, PREDICTED, LOST)}
+        bad = [k for k, w in enumerate(words) if w not in known]
+        if bad:
+            raise InvalidInputError(f"{file}: line {lines[bad[0]]}: status must be measured, predicted or lost; got {words[bad[0]]!r}")
+        status = np.array([known[w] for w in words], dtype=np.int8)
+    else:
+        status = np.full(len(rows), int(MEASURED), dtype=np.int8)
+    frame = _indices(file, table[:, column["frame"]], lines, "frame")
+    track = _indices(file, table[:, column["track_id"]], lines, "track_id")
+    positioned = status != LOST
+    xy = np.stack([_floats(file, table[positioned, column[c]], lines[positioned], c) for c in ("x", "y")], axis=1)
+    velocity = std = None
+    if "vx" in column and "vy" in column:
+        velocity = np.stack([_floats(file, table[positioned, column[c]], lines[positioned], c, finite=False)
+                             for c in ("vx", "vy")], axis=1)
+    if "std_x" in column and "std_y" in column:
+        std = np.stack([_floats(file, table[positioned, column[c]], lines[positioned], c, finite=False)
+                        for c in ("std_x", "std_y")], axis=1)
+        measured_rows = status[positioned] == MEASURED
+        bad = measured_rows & ~(std > 0).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InvalidInputError(f"{file}: line {lines[positioned][i]}: std_x and std_y must be > 0; got {std[i].tolist()}")
+
+    frames = np.unique(frame)
+    track_ids = np.unique(track)
+    fi = np.searchsorted(frames, frame)
+    pi = np.searchsorted(track_ids, track)
+    key = fi.astype(np.int64) * len(track_ids) + pi
+    unique_keys, counts = np.unique(key, return_counts=True)
+    if (counts > 1).any():
+        dup = unique_keys[counts > 1][0]
+        where = lines[key == dup]
+        raise InvalidInputError(
+            f"{file}: lines {where[0]} and {where[1]}: frame {frame[key == dup][0]}, track_id {track[key == dup][0]} given twice"
+        )
+    shape = (len(frames), len(track_ids))
+    status_table = np.zeros(shape, np.int8)
+    status_table[fi, pi] = status
+    positions = np.full(shape + (2,), np.nan)
+    fp, pp = fi[positioned], pi[positioned]
+    positions[fp, pp] = xy
+    states = covariances = None
+    if velocity is not None:
+        states = np.full(shape + (4,), np.nan)
+        states[fp, pp] = np.concatenate([xy, velocity], axis=1)
+    if std is not None:
+        covariances = np.full(shape + (4, 4), np.nan)
+        covariances[fp, pp, 0, 0] = std[:, 0] ** 2
+        covariances[fp, pp, 1, 1] = std[:, 1] ** 2
+    return Tracks(positions=positions, status=status_table, track_ids=track_ids, states=states,
+                  covariances=covariances, frames=frames)
+
+
+def _indices(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np.ndarray:
+    out = np.empty(len(values), dtype=np.int64)
+    for i, text in enumerate(values):
+        try:
+            number = float(text)
+        except ValueError:
+            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be an integer; got {text!r}") from None
+        if not np.isfinite(number) or number != int(number):
+            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be an integer; got {text!r}")
+        if not 0 <= number <= MAX_INDEX:
+            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be in 0 … {MAX_INDEX}; got {text.strip()}")
+        out[i] = int(number)
+    return out
+
+
+def _floats(file: Path, values: np.ndarray, lines: np.ndarray, name: str, *, finite: bool = True) -> np.ndarray:
+    """Numbers of one column; empty cells are NaN, refused when ``finite``."""
+    out = np.empty(len(values))
+    for i, text in enumerate(values):
+        try:
+            out[i] = float(text) if (text.strip() or finite) else np.nan
+        except ValueError:
+            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be a number; got {text!r}") from None
+        if finite and not np.isfinite(out[i]):
+            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be finite; got {text.strip()!r}")
+        if not finite and np.isinf(out[i]):
+            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must not be infinite; got {text.strip()!r}")
+    return out
+
+
+def _real(file: Path, arrays: dict[str, np.ndarray], name: str, shape: tuple[int, ...]) -> np.ndarray | None:
+    if name not in arrays:
+        return None
+    value = arrays[name]
+    if value.dtype.kind not in "fiu" or value.shape != shape:
+        raise InvalidInputError(f"{file}: {name} must be a real numeric array of shape {shape}; got {value.dtype} {value.shape}")
+    return value.astype(np.float64)
+
+
+def _meta(file: Path, arrays: dict[str, np.ndarray]) -> tuple[TrackerSettings | None, bool | int]:
+    if "meta" not in arrays:
+        return None, False
+    try:
+        meta = json.loads(str(arrays["meta"]))
+    except ValueError as exc:
+        raise InvalidInputError(f"{file}: meta is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise InvalidInputError(f"{file}: meta must hold a JSON object; got {type(meta).__name__}")
+    settings = None if meta.get("settings") is None else from_json(TrackerSettings, meta["settings"], f"{file}: meta.settings")
+    smoothed = meta.get("smoothed", False)
+    if isinstance(smoothed, bool) or (isinstance(smoothed, int) and smoothed >= 0):
+        return settings, smoothed
+    raise InvalidInputError(f"{file}: meta.smoothed must be true, false or a lag >= 0; got {smoothed!r}")
+
+
+def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
+    """Read a ``tracks.npz`` (see the module notes) with its columns in the file's order.
+
+    States, covariances and the rest are optional.
+    """
+    file = Path(path)
+    arrays = load_npz(file)
+    missing = [k for k in ("positions", "status", "track_ids") if k not in arrays]
+    if missing:
+        raise InvalidInputError(f"{file}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(arrays)) or 'none'}")
+    positions, status, track_ids = arrays["positions"], arrays["status"], arrays["track_ids"]
+    if positions.ndim != 3 or positions.shape[2] != 2 or positions.dtype.kind not in "fiu":
+        raise InvalidInputError(f"{file}: positions must be a numeric (frames, points, 2) array; got {positions.dtype} {positions.shape}")
+    F, P = positions.shape[:2]
+    if status.shape != (F, P) or status.dtype.kind not in "iu":
+        raise InvalidInputError(f"{file}: status must be an integer ({F}, {P}) array; got {status.dtype} {status.shape}")
+    if track_ids.shape != (P,) or track_ids.dtype.kind not in "iu":
+        raise InvalidInputError(f"{file}: track_ids must be an integer ({P},) array; got {track_ids.dtype} {track_ids.shape}")
+    if len(np.unique(track_ids)) != P:
+        raise InvalidInputError(f"{file}: track_ids must be distinct")
+    if P and (track_ids.min() < 0 or track_ids.max() > MAX_INDEX):
+        raise InvalidInputError(f"{file}: track_ids must be in 0 … {MAX_INDEX}")
+    bad_code = ~np.isin(status, [int(s) for s in TrackStatus])
+    if bad_code.any():
+        f, p = np.argwhere(bad_code)[0]
+        raise InvalidInputError(f"{file}: status[{f}, {p}] = {status[f, p]}; expected 0, 1, 2 or 3")
+    xy = positions.astype(np.float64)
+    bad = ((status == MEASURED) | (status == PREDICTED)) & ~np.isfinite(xy).all(axis=2)
+    if bad.any():
+        f, p = np.argwhere(bad)[0]
+        raise InvalidInputError(f"{file}: positions[{f}, {p}] = {xy[f, p].tolist()} is not finite but status says {TrackStatus(status[f, p]).label}")
+    frames = np.arange(F)
+    if "frames" in arrays:
+        frames = arrays["frames"]
+        if frames.shape != (F,) or frames.dtype.kind not in "iu":
+            raise InvalidInputError(f"{file}: frames must be an integer ({F},) array; got {frames.dtype} {frames.shape}")
+        if F and (frames.min() < 0 or frames.max() > MAX_INDEX or (np.diff(frames) <= 0).any()):
+            raise InvalidInputError(f"{file}: frames must be increasing frame numbers in 0 … {MAX_INDEX}")
+    states = _real(file, arrays, "states", (F, P, 4))
+    covariances = _real(file, arrays, "covariances", (F, P, 4, 4))
+    scores = _real(file, arrays, "scores", (F, P))
+    if covariances is not None:
+        variances = np.stack([covariances[..., 0, 0], covariances[..., 1, 1]], axis=-1)
+        bad = (status == MEASURED) & ~(np.isfinite(variances) & (variances > 0)).all(axis=2)
+        if bad.any():
+            f, p = np.argwhere(bad)[0]
+            raise InvalidInputError(f"{file}: covariances[{f}, {p}] has a non-positive or non-finite position variance")
     size = arrays.get("image_size")
     if size is not None and (size.shape != (2,) or size.dtype.kind not in "iu" or (size <= 0).any()):
-        raise InvalidInputError(f"{path}: image_size must be two positive integers (width, height); got {size!r}")
-    parameters = {}
-    if "parameters" in arrays:
-        try:
-            parameters = json.loads(str(arrays["parameters"]))
-        except ValueError as exc:
-            raise InvalidInputError(f"{path}: the parameters array is not valid JSON ({exc})") from None
-        if not isinstance(parameters, dict):
-            raise InvalidInputError(f"{path}: the parameters array must hold a JSON object; got {type(parameters).__name__}")
+        raise InvalidInputError(f"{file}: image_size must be two positive integers (width, height); got {size!r}")
+    settings, smoothed = _meta(file, arrays)
     return Tracks(
-        positions=arrays["positions"],
-        states=arrays["states"],
-        covariances=arrays["covariances"],
-        status=arrays["status"].astype(np.int8),
-        track_ids=arrays["track_ids"].astype(np.int64),
-        scores=arrays.get("scores"),
+        positions=xy,
+        status=status.astype(np.int8),
+        track_ids=track_ids.astype(np.int64),
+        states=states,
+        covariances=covariances,
+        frames=frames.astype(np.int64),
+        scores=scores,
         image_size=None if size is None else (int(size[0]), int(size[1])),
-        parameters=parameters,
+        settings=settings,
+        smoothed=smoothed,
     )
 
 
-def read_tracks_csv(path: str | os.PathLike[str], n_frames: int | None = None) -> Tracks:
-    """Read a ``tracks.csv``; covariances hold only the x, y variances (the rest NaN).
-
-    Parameters
-    ----------
-    path : the CSV file.
-    n_frames : number of frames (default: last frame in the file + 1).
-    """
-    path = Path(path)
-    rows = _read_csv_rows(path, required=CSV_COLUMNS)
-    if not rows:
-        raise InvalidInputError(f"{path} holds no tracks")
-    parsed = []
-    for line, row in rows:
-        try:
-            frame, track_id = int(row["frame"]), int(row["track_id"])
-            numbers = [float(row[c]) if row[c].strip() else np.nan for c in ("x", "y", "vx", "vy", "std_x", "std_y")]
-            code = _CODES[row["status"].strip()]
-        except (ValueError, KeyError):
-            raise InvalidInputError(f"{path} row {line}: expected integers, numbers and a status word; got {dict(row)}") from None
-        limit = MAX_FRAMES if n_frames is None else int(n_frames)
-        if not 0 <= frame < limit:
-            raise InvalidInputError(f"{path} row {line}: frame must be in 0 … {limit - 1}; got {frame}")
-        parsed.append((frame, track_id, numbers, code))
-    ids = sorted({p[1] for p in parsed})
-    column = {i: c for c, i in enumerate(ids)}
-    F = max(p[0] for p in parsed) + 1 if n_frames is None else int(n_frames)
-    tracks = Tracks.empty(F, len(ids))
-    tracks.track_ids[:] = ids
-    for frame, track_id, numbers, code in parsed:
-        c = column[track_id]
-        tracks.status[frame, c] = code
-        tracks.states[frame, c] = numbers[:4]
-        tracks.positions[frame, c] = numbers[:2]
-        tracks.covariances[frame, c, 0, 0] = numbers[4] ** 2
-        tracks.covariances[frame, c, 1, 1] = numbers[5] ** 2
-    return tracks
+# --- start points ------------------------------------------------------------------------------
 
 
 def _read_csv_rows(path: Path, required: tuple[str, ...]) -> list[tuple[int, dict[str, str]]]:
@@ -182,19 +377,22 @@ def _read_csv_rows(path: Path, required: tuple[str, ...]) -> list[tuple[int, dic
     except (OSError, UnicodeDecodeError) as exc:
         raise InvalidInputError(f"{path} is not a readable text CSV ({exc})") from None
     reader = csv.DictReader(io.StringIO(text))
-    header = [h.strip() for h in (reader.fieldnames or [])]
-    reader.fieldnames = header
-    missing = [c for c in required if c not in header]
-    if missing:
-        raise InvalidInputError(f"{path} row 1 (header): missing column(s) {', '.join(missing)}; got {header}")
-    rows = []
-    for row in reader:
-        line = reader.line_num
-        if None in row or any(v is None for v in row.values()):
-            raise InvalidInputError(f"{path} row {line}: expected {len(header)} fields like the header")
-        if not any(v.strip() for v in row.values()):
-            continue
-        rows.append((line, row))
+    try:
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        reader.fieldnames = header
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise InvalidInputError(f"{path} row 1 (header): missing column(s) {', '.join(missing)}; got {header}")
+        rows = []
+        for row in reader:
+            line = reader.line_num
+            if None in row or any(v is None for v in row.values()):
+                raise InvalidInputError(f"{path} row {line}: expected {len(header)} fields like the header")
+            if not any(v.strip() for v in row.values()):
+                continue
+            rows.append((line, row))
+    except csv.Error as exc:
+        raise InvalidInputError(f"{path} is not a readable CSV ({exc})") from None
     return rows
 
 
@@ -237,9 +435,14 @@ def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarra
             raise InvalidInputError(f"{path} row {line}: x and y must be finite; got {row['x']}, {row['y']}")
         if has_ids:
             try:
-                ids[k] = int(row["track_id"])
+                number = float(row["track_id"])
             except ValueError:
-                raise InvalidInputError(f"{path} row {line}: track_id must be an integer; got {row['track_id']!r}") from None
+                number = np.nan
+            if not (np.isfinite(number) and number == int(number) and 0 <= number <= MAX_INDEX):
+                raise InvalidInputError(
+                    f"{path} row {line}: track_id must be an integer in 0 … {MAX_INDEX}; got {row['track_id']!r}"
+                )
+            ids[k] = int(number)
             if int(ids[k]) in seen:
                 raise InvalidInputError(f"{path} row {line}: track_id {ids[k]} repeats row {seen[int(ids[k])]}")
             seen[int(ids[k])] = line

@@ -1,6 +1,5 @@
-"""Reporting: tables, plots and the HTML report."""
+"""Reporting: figures, tables and the HTML report. It draws and formats what it is given; it computes no estimates."""
 
 from .html import build_report, render_report
-from .run_folder import RunFolder, load_run, read_summary
 
-__all__ = ["RunFolder", "build_report", "load_run", "read_summary", "render_report"]
+__all__ = ["build_report", "render_report"]

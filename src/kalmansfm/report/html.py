@@ -19,16 +19,20 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 from ..errors import InvalidInputError
 from ..io.atomic import output_directory
-from ..structure.alignment import align_similarity
+from ..io.frames import encode_png
+from ..io.records import to_json
+from ..io.run_folder import RunFolder, load_run
+from ..io.structure import PointTable
+from ..io.summary import SUMMARY_FILE, RunSummary
+from ..structure.cameras import camera_rotation_matrices
 from . import figures
 from ._assets import CSS, ERROR_TRAP_JS, JS
-from .run_folder import RunFolder, load_run
+from .drawing import gate_radius_of, render_tracked_frames, track_colors
 
 __all__ = ["build_report", "render_report"]
 
@@ -118,93 +122,90 @@ def _cards(items: Sequence[tuple[str, str]]) -> str:
     return f'<div class="cards">{cards}</div>'
 
 
-def _get(mapping: Any, *keys: str) -> Any:
-    for key in keys:
-        if not isinstance(mapping, dict):
-            return None
-        mapping = mapping.get(key)
-    return mapping
+def _total_seconds(summary: RunSummary) -> float | None:
+    if summary.total_s is not None and math.isfinite(summary.total_s):
+        return summary.total_s
+    return None
 
 
 # --- sections ------------------------------------------------------------------
 
 
-def _gate_probability(summary: dict[str, Any]) -> float:
-    value = _get(summary, "parameters", "gate_probability")
-    return float(value) if _is_number(value) and 0 < value < 1 else 0.95
-
-
-def _read_frames(run: RunFolder) -> list[np.ndarray]:
-    frames = []
-    for path in run.frame_paths:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise InvalidInputError(f"{path}: cannot be read as a PNG image")
-        if image.dtype != np.uint8:
-            image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
-        if image.ndim == 3 and image.shape[2] == 4:
-            image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-        frames.append(image)
-    return frames
-
-
 def _section_header(run: RunFolder) -> str:
     s = run.summary
-    tracking = s.get("tracking") or {}
-    factorization = s.get("factorization") or {}
-    timings = s.get("timings_s") or {}
-    total_time = sum(v for v in timings.values() if _is_number(v)) if timings else None
+    tracking, structure, truth = s.tracking, s.structure, s.truth
     cards = []
-    if _is_number(tracking.get("frames")):
-        cards.append(("frames", _number(tracking["frames"])))
-    if _is_number(tracking.get("tracks")):
-        cards.append(("tracks", _number(tracking["tracks"])))
-    if _is_number(tracking.get("fraction_tracked")):
-        cards.append(("of track-frames measured", _percent(tracking["fraction_tracked"])))
-    if _is_number(tracking.get("rms_error_px")):
-        cards.append(("tracking RMS error vs truth", f"{tracking['rms_error_px']:.2f} px"))
-    if _is_number(tracking.get("within_2px")):
-        cards.append(("estimates within 2 px of truth", _percent(tracking["within_2px"])))
-    if _is_number(factorization.get("residual_rms_px")):
-        cards.append(("factorization residual RMS", f"{factorization['residual_rms_px']:.3g} px"))
-    if _is_number(factorization.get("shape_error_pct")):
-        cards.append(("3D shape error vs truth", f"{factorization['shape_error_pct']:.2f} %"))
-    if total_time is not None and timings:
-        cards.append(("time taken", f"{total_time:.2f} s"))
+    if tracking is not None:
+        cards.append(("frames", _number(tracking.frames)))
+        cards.append(("tracks", _number(tracking.tracks)))
+        cards.append(("of track-frames measured", _percent(tracking.measured_fraction)))
+    if truth is not None and _is_number(truth.tracking_rms_error_px):
+        cards.append(("tracking RMS error vs truth", f"{truth.tracking_rms_error_px:.2f} px"))
+    if truth is not None and _is_number(truth.within_2px):
+        cards.append(("estimates within 2 px of truth", _percent(truth.within_2px)))
+    if structure is not None and _is_number(structure.residual_rms_px):
+        cards.append(("factorization residual RMS", f"{structure.residual_rms_px:.3g} px"))
+    if truth is not None and _is_number(truth.shape_error_pct):
+        cards.append(("3D shape error vs truth", f"{truth.shape_error_pct:.2f} %"))
+    total = _total_seconds(s)
+    if total is not None:
+        cards.append(("time taken", f"{total:.2f} s"))
     meta = [
-        f"input: <strong>{_esc(str(s.get('input', 'unknown')))}</strong>",
-        f"kalmansfm {_esc(str(s.get('kalmansfm_version', '?')))}",
-        f"run created {_esc(str(s.get('created', '?')))}",
+        f"input: <strong>{_esc(s.input)}</strong>",
+        f"kalmansfm {_esc(s.versions.kalmansfm)}",
+        f"run created {_esc(s.created)}",
     ]
-    command = f'<p class="meta">command: <code>{_esc(str(s["command"]))}</code></p>' if s.get("command") else ""
+    command = f'<p class="meta">command: <code>{_esc(s.command)}</code></p>'
     return (
         f'<header><div class="wrap"><h1>kalmansfm report</h1><p class="meta">{" · ".join(meta)}</p>'
         f"{command}{_cards(cards) if cards else ''}</div></header>"
     )
 
 
+def _settings_rows(run: RunFolder) -> list[tuple[str, Any]]:
+    settings = run.summary.settings
+    if settings is None:
+        return []
+    rows: list[tuple[str, Any]] = []
+    for name, value in to_json(settings).items():
+        if name == "model":
+            for matrix, entries in value.items():
+                full = np.asarray(entries, dtype=float)
+                square = full.shape[0] == full.shape[1]
+                diagonal = square and np.array_equal(full, np.diag(np.diagonal(full)))
+                shown = f"diag({_number(np.diagonal(full).tolist())})" if diagonal else _number(entries)
+                rows.append((f"model {matrix}", _Html(_esc(shown))))
+        else:
+            rows.append((name, value))
+    rows.append(("gate radius c (used)", settings.effective_gate_radius))
+    rows.append(("smoothed", run.summary.smoothed))
+    return rows
+
+
 def _section_parameters(run: RunFolder) -> str | None:
-    parameters = run.summary.get("parameters") or {}
-    timings = run.summary.get("timings_s") or {}
-    if not parameters and not timings:
+    rows = _settings_rows(run)
+    timings = run.summary.timings_s
+    if not rows and not timings:
         return None
     parts = ['<div class="two">']
-    if parameters:
-        parts.append("<div><h3>Parameters</h3>" + _table(["name", "value"], sorted(parameters.items())) + "</div>")
+    if rows:
+        parts.append("<div><h3>Tracker settings</h3>" + _table(["name", "value"], rows) + "</div>")
     if timings:
-        rows = list(timings.items())
-        total = sum(v for v in timings.values() if _is_number(v))
-        rows.append((_Html("<strong>total</strong>"), total))
-        parts.append("<div><h3>Time per step (s)</h3>" + _table(["step", "seconds"], rows) + "</div>")
+        table_rows: list[Sequence[Any]] = [(step, seconds) for step, seconds in timings]
+        total = _total_seconds(run.summary)
+        if total is not None:
+            table_rows.append((_Html("<strong>total (the whole run)</strong>"), total))
+        parts.append("<div><h3>Time per step (s)</h3>" + _table(["step", "seconds"], table_rows) + "</div>")
     parts.append("</div>")
     return "".join(parts)
 
 
-def _legend(probability: float) -> str:
+def _legend(radius: float, known: bool) -> str:
+    source = "the tracker's gate radius" if known else "the default gate radius; the tracks carry no settings"
     return (
         '<p class="legend note"><span>● filled: measured</span><span>○ ring: predicted (no measurement)</span>'
-        f"<span>✕: lost</span><span>ellipse: {100 * probability:g} % region of the position covariance "
-        "(upper-left 2×2 block of the state covariance)</span>"
+        f"<span>✕: lost</span><span>ellipse: Mahalanobis radius c = {radius:.3g} ({source}) around the position "
+        "covariance (upper-left 2×2 block of the state covariance)</span>"
         "<span>line: the track's path so far</span></p>"
     )
 
@@ -218,7 +219,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
         # frames without tracks: just the strip of raw frames
         picks = np.unique(np.linspace(0, len(frames) - 1, min(STRIP_FRAMES, len(frames))).round().astype(int))
         strip = "".join(
-            f"<figure>{_img(figures.png_bytes(frames[f]), f'frame {f}')}<figcaption>frame {f}</figcaption></figure>"
+            f"<figure>{_img(encode_png(frames[f]), f'frame {f}')}<figcaption>frame {f}</figcaption></figure>"
             for f in picks
         )
         return f'<p class="note">No tracks.npz in this run; the frames alone.</p><div class="strip">{strip}</div>'
@@ -229,12 +230,11 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
             f'<p class="warn">The run has {len(frames)} frame images but tracks.npz holds {n_frames} frames; '
             "tracks are drawn on the nearest available frame.</p>"
         )
-    probability = _gate_probability(run.summary)
     strip_indices = np.unique(np.linspace(0, n_frames - 1, min(STRIP_FRAMES, n_frames)).round().astype(int)).tolist()
 
     def draw(f: int) -> str:
-        (image,) = figures.render_tracked_frames(frames or None, tracks, [f], gate_probability=probability)
-        return _data_uri(figures.png_bytes(image))
+        (image,) = render_tracked_frames(frames or None, tracks, [f])
+        return _data_uri(encode_png(image))
 
     rendered = {f: draw(f) for f in strip_indices}
     # the player's size budget, from the size of the frames drawn so far
@@ -269,7 +269,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
         for f in strip_indices
     )
     parts.append(f'<h3>Frame strip</h3><div class="strip">{strip}</div>')
-    parts.append(_legend(probability))
+    parts.append(_legend(gate_radius_of(tracks), tracks.settings is not None))
     if background or gate_note:
         parts.append(f'<p class="note">{_esc(background + gate_note)}</p>')
     return "".join(parts)
@@ -300,59 +300,67 @@ def _section_uncertainty(run: RunFolder) -> str | None:
 
 
 def _section_tracks(run: RunFolder) -> str | None:
-    tracking = run.summary.get("tracking") or {}
-    per_track = tracking.get("per_track") or []
-    if not tracking and "tracks.png" not in run.figures:
+    tracking = run.summary.tracking
+    if tracking is None and "tracks.png" not in run.figures:
         return None
     parts = []
-    if tracking:
-        keys = [
-            ("frames", "frames"),
-            ("tracks", "tracks"),
-            ("fraction_tracked", "fraction of track-frames measured"),
-            ("rms_error_px", "RMS error vs ground truth (px)"),
-            ("within_2px", "fraction within 2 px of ground truth"),
+    truth = run.summary.truth
+    if tracking is not None:
+        rows: list[tuple[str, Any]] = [
+            ("frames", tracking.frames),
+            ("tracks", tracking.tracks),
+            ("fraction of track-frames measured", tracking.measured_fraction),
+            ("tracks alive in the last frame", tracking.alive_in_last_frame),
         ]
-        rows = [(label, tracking[key]) for key, label in keys if tracking.get(key) is not None]
-        if rows:
-            parts.append(_table(["", "value"], rows))
-    if per_track:
-        ids = run.tracks.track_ids.tolist() if run.tracks is not None else []
-        colors = figures.track_colors(len(ids))
-        color_of = dict(zip(ids, colors))
-        columns = ["track_id", "frames_measured", "frames_predicted", "lost_at", "rms_error_px", "mean_std_px"]
-        extra = sorted({k for row in per_track for k in row} - set(columns))
-        header = ["track", "measured", "predicted", "lost at frame", "RMS error (px)", "mean std (px)", *extra]
+        if truth is not None:
+            rows += [
+                ("fraction of visible points measured", truth.visible_measured_fraction),
+                ("RMS error vs ground truth (px)", truth.tracking_rms_error_px),
+                ("fraction within 2 px of ground truth", truth.within_2px),
+            ]
+        parts.append(_table(["", "value"], [r for r in rows if r[1] is not None]))
+    if tracking is not None and tracking.per_track:
+        ids = [row.track_id for row in tracking.per_track]
+        color_of = dict(zip(ids, _colors_of(run, np.asarray(ids))))
+        errors = truth.per_track_rms_error_px if truth is not None else ()
+        header = ["track", "measured", "predicted", "lost at frame", "mean std (px)"]
+        if errors:
+            header.append("RMS error (px)")
         rows = []
-        for row in per_track:
-            track = row.get("track_id")
-            swatch = f'<span class="swatch" style="background:{color_of[track]}"></span>' if track in color_of else ""
-            first = _Html(f"{swatch}{_number(track)}")
-            rows.append([first, *(row.get(c) for c in columns[1:]), *(row.get(c) for c in extra)])
+        for k, row in enumerate(tracking.per_track):
+            swatch = f'<span class="swatch" style="background:{color_of[row.track_id]}"></span>'
+            cells = [_Html(f"{swatch}{row.track_id}"), row.frames_measured, row.frames_predicted, row.lost_at,
+                     row.mean_std_px]
+            if errors:
+                cells.append(errors[k] if k < len(errors) else None)
+            rows.append(cells)
         parts.append("<h3>Per track</h3>")
         parts.append('<p class="note">Click a column header to sort. Colours match the drawings.</p>')
         parts.append(_table(header, rows, sortable=True, numeric=[True] * len(header)))
     if "tracks.png" in run.figures:
-        parts.append(_figure(run.figures["tracks.png"].read_bytes(), "Tracks (from the run)."))
+        parts.append(_figure(run.figures["tracks.png"].read_bytes(), "The tracks over the last frame (from the run)."))
     return "".join(parts) or None
 
 
 def _section_factorization(run: RunFolder) -> str | None:
-    factorization = run.summary.get("factorization") or {}
-    if not factorization:
+    structure = run.summary.structure
+    if structure is None:
+        if run.summary.structure_error:
+            return f'<p class="warn">Not computed: {_esc(run.summary.structure_error)}</p>'
         return None
     parts = []
-    values = factorization.get("singular_values") or []
-    numbers = [float(v) for v in values if _is_number(v)]
-    facts = []
-    if _is_number(factorization.get("residual_rms_px")):
-        facts.append(("residual RMS after the rank-3 fit (px)", factorization["residual_rms_px"]))
+    numbers = [float(v) for v in structure.singular_values if _is_number(v)]
+    facts: list[tuple[str, Any]] = [
+        ("method", structure.method),
+        ("residual RMS after the rank-3 fit (px)", structure.residual_rms_px),
+        ("weighted by the tracker's variances", structure.weighted),
+        ("smoothed tracks", structure.smoothed),
+    ]
     if len(numbers) >= 4 and numbers[3] > 0:
         facts.append(("σ3 / σ4 (large = clearly rank 3)", numbers[2] / numbers[3]))
-    if facts:
-        parts.append(_table(["", "value"], facts))
-    for warning in factorization.get("warnings") or []:
-        parts.append(f'<p class="warn">{_esc(str(warning))}</p>')
+    parts.append(_table(["", "value"], facts))
+    for warning in structure.warnings:
+        parts.append(f'<p class="warn">{_esc(warning)}</p>')
     if numbers:
         shown = numbers[:12]
         parts.append('<div class="two">')
@@ -369,21 +377,20 @@ def _section_factorization(run: RunFolder) -> str | None:
             + (f'<p class="note">{len(numbers) - len(shown)} more not listed.</p>' if len(numbers) > len(shown) else "")
             + "</div></div>"
         )
-    return "".join(parts) or None
+    return "".join(parts)
 
 
 def _colors_of(run: RunFolder, track_ids: np.ndarray) -> list[str]:
     """The colour each track has in the drawings of the sequence (by its column in tracks.npz)."""
     if run.tracks is None:
-        return figures.track_colors(len(track_ids))
-    palette = figures.track_colors(len(run.tracks.track_ids))
+        return track_colors(len(track_ids))
+    palette = track_colors(len(run.tracks.track_ids))
     column_of = {int(t): k for k, t in enumerate(run.tracks.track_ids)}
     grey = "#7f7f7f"
     return [palette[column_of[int(t)]] if int(t) in column_of else grey for t in track_ids]
 
 
-def _shape_payload(run: RunFolder, aligned_truth: np.ndarray | None) -> dict[str, Any]:
-    structure = run.structure
+def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray | None) -> dict[str, Any]:
     centre = structure.points.mean(axis=0)
     points = structure.points - centre
     radius = float(np.linalg.norm(points, axis=1).max()) or 1.0
@@ -392,82 +399,75 @@ def _shape_payload(run: RunFolder, aligned_truth: np.ndarray | None) -> dict[str
         "labels": structure.track_ids.tolist(),
         "colors": _colors_of(run, structure.track_ids),
         "radius": radius,
-        "truth": None if aligned_truth is None else np.round(aligned_truth - centre, 6).tolist(),
+        "truth": None if truth_here is None else np.round(truth_here - centre, 6).tolist(),
         "cameras": [],
         "camera_frames": [],
     }
     if run.motion is not None and len(run.motion.frames):
-        payload["cameras"] = np.round(figures.camera_rotation_matrices(run.motion), 6).tolist()
+        payload["cameras"] = np.round(camera_rotation_matrices(run.motion.rows), 6).tolist()
         payload["camera_frames"] = run.motion.frames.tolist()
     return payload
 
 
 def _matched_truth(run: RunFolder) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Recovered points, ground-truth points and ids, matched by track id."""
-    if run.structure is None or run.ground_truth_points is None:
+    """Recovered points, ground-truth points and ids, matched by track id (in the order of structure.csv)."""
+    if run.structure is None or run.ground_truth_points is None or run.summary.truth is None:
+        return None
+    if run.summary.truth.alignment is None:
         return None
     common, in_structure, in_truth = np.intersect1d(
         run.structure.track_ids, run.ground_truth_points.track_ids, return_indices=True
     )
     if len(common) < 3:
         return None
-    return run.structure.points[in_structure], run.ground_truth_points.points[in_truth], common
-
-
-def _best_alignment(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float, bool]:
-    proper = align_similarity(source, target)
-    mirrored = align_similarity(source, target, allow_reflection=True)
-    if mirrored.rms < 0.5 * proper.rms:
-        return mirrored.aligned, mirrored.rms, True
-    return proper.aligned, proper.rms, False
+    order = np.argsort(in_structure)
+    return run.structure.points[in_structure[order]], run.ground_truth_points.points[in_truth[order]], common[order]
 
 
 def _section_shape(run: RunFolder) -> str | None:
-    if run.structure is None and "structure.png" not in run.figures:
+    structure = run.structure
+    if structure is None or not len(structure.points):
+        if "structure.png" in run.figures:
+            return _figure(run.figures["structure.png"].read_bytes(), "Recovered structure (from the run).")
         return None
     parts = []
-    if run.structure is not None and len(run.structure.points):
-        matched = _matched_truth(run)
-        aligned_truth = None
-        if matched is not None and len(matched[2]) == len(run.structure.track_ids):
-            # truth moved onto the recovered points, in the order of structure.csv
-            order = np.argsort(np.argsort(run.structure.track_ids))
-            recovered, truth, _ = matched
-            aligned_truth = _best_alignment(truth, recovered)[0][order]
-        payload = json.dumps(_shape_payload(run, aligned_truth), allow_nan=False)
-        truth_toggle = (
-            '<label><input id="view3d-truth" type="checkbox" checked> ground truth (rings, aligned)</label>'
-            if aligned_truth is not None
-            else ""
-        )
-        camera_slider = (
-            '<label>view from camera <input id="view3d-camera" type="range" min="0" max="0" value="0" '
-            'aria-label="camera"></label> <span id="view3d-camera-label"></span>'
-            if run.motion is not None
-            else ""
-        )
-        parts.append(
-            '<h3 id="interactive-3d">Interactive view</h3>'
-            '<p class="note">Drag to rotate, wheel to zoom. Purple squares: the direction each camera looked from '
-            "(the recovered camera path).</p>"
-            f'<div class="controls"><button id="view3d-reset" type="button">reset</button>{truth_toggle}'
-            f"{camera_slider}</div>"
-            '<canvas id="view3d" class="view3d" width="720" height="440"></canvas>'
-            f'<script type="application/json" id="shape-data">{payload}</script>'
-            "<noscript><p class='note'>The interactive view needs JavaScript; the fixed views follow.</p></noscript>"
-        )
-        parts.append(
-            _figure(
-                figures.shape_views_figure(
-                    run.structure.points,
-                    run.structure.track_ids.tolist(),
-                    colors=_colors_of(run, run.structure.track_ids),
-                ),
-                f"The {len(run.structure.points)} recovered 3D points from four viewpoints (Y down, as in the image).",
-            )
-        )
+    matched = _matched_truth(run)
+    truth_here = None
+    if matched is not None and len(matched[2]) == len(structure.track_ids):
+        # the truth moved onto the recovered points by the inverse of the run's alignment
+        truth_here = run.summary.truth.alignment.invert(matched[1])  # type: ignore[union-attr]
+    payload = json.dumps(_shape_payload(run, structure, truth_here), allow_nan=False)
+    truth_toggle = (
+        '<label><input id="view3d-truth" type="checkbox" checked> ground truth (rings, aligned)</label>'
+        if truth_here is not None
+        else ""
+    )
+    camera_slider = (
+        '<label>view from camera <input id="view3d-camera" type="range" min="0" max="0" value="0" '
+        'aria-label="camera"></label> <span id="view3d-camera-label"></span>'
+        if run.motion is not None
+        else ""
+    )
+    parts.append(
+        '<h3 id="interactive-3d">Interactive view</h3>'
+        '<p class="note">Drag to rotate, wheel to zoom. Purple squares: the direction each camera looked from '
+        "(the recovered camera path).</p>"
+        f'<div class="controls"><button id="view3d-reset" type="button">reset</button>{truth_toggle}'
+        f"{camera_slider}</div>"
+        '<canvas id="view3d" class="view3d" width="720" height="440"></canvas>'
+        f'<script type="application/json" id="shape-data">{payload}</script>'
+        "<noscript><p class='note'>The interactive view needs JavaScript; the fixed views follow.</p></noscript>"
+    )
     if "structure.png" in run.figures:
         parts.append(_figure(run.figures["structure.png"].read_bytes(), "Recovered structure (from the run)."))
+    else:
+        parts.append(
+            _figure(
+                figures.shape_views_figure(structure.points, structure.track_ids.tolist(),
+                                           colors=_colors_of(run, structure.track_ids)),
+                f"The {len(structure.points)} recovered 3D points from four viewpoints (Y down, as in the image).",
+            )
+        )
     return "".join(parts)
 
 
@@ -484,17 +484,17 @@ def _section_motion(run: RunFolder) -> str | None:
 
 
 def _section_ground_truth(run: RunFolder) -> str | None:
+    truth = run.summary.truth
+    if truth is None:
+        return None
     parts = []
-    tracking = run.summary.get("tracking") or {}
-    factorization = run.summary.get("factorization") or {}
     if run.tracks is not None and run.ground_truth_tracks is not None:
         rms, distances = figures.track_error_per_frame(run.tracks.positions, run.ground_truth_tracks)
-        facts = [("frames with a comparison", int(np.isfinite(rms).sum()))]
+        facts: list[tuple[str, Any]] = [("frames with a comparison", int(np.isfinite(rms).sum()))]
         if np.isfinite(distances).any():
-            facts.append(("median error (px)", float(np.nanmedian(distances))))
-            facts.append(("worst error (px)", float(np.nanmax(distances))))
-        if _is_number(tracking.get("rms_error_px")):
-            facts.append(("RMS error (px, from summary)", tracking["rms_error_px"]))
+            facts.append(("median error, every estimate (px)", float(np.nanmedian(distances))))
+            facts.append(("worst error, every estimate (px)", float(np.nanmax(distances))))
+        facts.append(("RMS error of the measured estimates (px)", truth.tracking_rms_error_px))
         parts.append("<h3>Tracking error</h3>" + _table(["", "value"], facts))
         parts.append(
             _figure(
@@ -505,33 +505,30 @@ def _section_ground_truth(run: RunFolder) -> str | None:
         )
     matched = _matched_truth(run)
     if matched is not None:
-        recovered, truth, ids = matched
-        aligned, rms, mirrored = _best_alignment(recovered, truth)
-        spread = float(np.sqrt(((truth - truth.mean(0)) ** 2).sum(axis=1).mean()))
-        facts = [("points compared", len(ids)), ("RMS distance after alignment (truth units)", rms)]
-        if spread > 0:
-            facts.append(("relative to the shape's RMS radius", f"{100 * rms / spread:.2f} %"))
-        if _is_number(factorization.get("shape_error_pct")):
-            facts.append(("shape error (%, from summary)", factorization["shape_error_pct"]))
+        recovered, true_points, ids = matched
+        alignment = truth.alignment
+        aligned = alignment.apply(recovered)  # type: ignore[union-attr]
+        facts = [("points compared", len(ids)), ("shape error (% of the object's RMS radius)", truth.shape_error_pct)]
         parts.append("<h3>3D shape</h3>" + _table(["", "value"], facts))
-        if mirrored:
+        if alignment.mirrored:  # type: ignore[union-attr]
             parts.append(
                 '<p class="warn">The recovered shape fits the truth best as a mirror image: the depth-reversal '
                 "ambiguity of orthographic factorization.</p>"
             )
         parts.append(
             _figure(
-                figures.shape_views_figure(aligned, ids.tolist(), colors=_colors_of(run, ids), truth=truth),
+                figures.shape_views_figure(aligned, ids.tolist(), colors=_colors_of(run, ids), truth=true_points),
                 "Recovered points after the best similarity transform onto the ground truth (dots) and the "
                 "ground truth (rings).",
             )
         )
-    errors = factorization.get("rotation_error_deg")
-    if isinstance(errors, list) and errors and all(_is_number(v) for v in errors):
+    errors = [v for v in truth.rotation_error_deg if v is not None]
+    if errors:
         parts.append("<h3>Camera rotation</h3>")
-        parts.append(_figure(figures.rotation_error_figure(errors), "Camera rotation error per frame (degrees)."))
-    if not parts and _is_number(factorization.get("shape_error_pct")):
-        parts.append(_table(["", "value"], [("shape error (%)", factorization["shape_error_pct"])]))
+        parts.append(_figure(figures.rotation_error_figure(truth.rotation_error_deg),
+                             "Camera rotation error per frame (degrees)."))
+    if not parts and _is_number(truth.shape_error_pct):
+        parts.append(_table(["", "value"], [("shape error (%)", truth.shape_error_pct)]))
     return "".join(parts) or None
 
 
@@ -540,8 +537,6 @@ def _section_tables(run: RunFolder) -> str | None:
     for table in run.fusion_tables:
         parts.append(f"<h3>{_esc(table.name)}</h3>")
         parts.append(_table(table.header, table.rows))
-    if "task7.png" in run.figures:
-        parts.append(_figure(run.figures["task7.png"].read_bytes(), "Task 7 (from the run)."))
     return "".join(parts) or None
 
 
@@ -570,7 +565,7 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
     progress : bool
         Show a progress bar (stderr) while frames are drawn.
     """
-    frames = _read_frames(run) if run.frame_paths else []
+    frames = run.read_frames()
     candidates = [
         ("parameters", "Parameters", lambda: _section_parameters(run)),
         ("sequence", "Sequence with tracks and gates", lambda: _section_sequence(run, frames, progress)),
@@ -593,8 +588,8 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         f'<section id="{anchor}"><div class="wrap"><h2>{_esc(title)}</h2>{body}</div></section>'
         for anchor, title, body in sections
     )
-    title = f"kalmansfm report: {run.summary.get('input', run.path.name)}"
-    version = _esc(str(run.summary.get("kalmansfm_version", "?")))
+    title = f"kalmansfm report: {run.summary.input}"
+    version = _esc(run.summary.versions.kalmansfm)
     built = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     return (
         "<!DOCTYPE html>\n"
@@ -619,11 +614,10 @@ def build_report(
     Parameters
     ----------
     run_dir : path
-        A run folder: ``summary.json`` plus any of the optional files (frames,
-        tracks, structure, motion, ground truth, tables); see
-        :func:`kalmansfm.report.run_folder.load_run`.
+        A run folder: ``summary.json`` plus the files it lists (frames, tracks,
+        structure, motion, ground truth, tables); see :func:`kalmansfm.io.load_run`.
     out_name : str
-        File name of the report inside ``run_dir``.
+        File name of the report inside ``run_dir``; it may not be one of the run's files.
     progress : bool
         Show a progress bar on stderr while frames are drawn.
 
@@ -635,22 +629,27 @@ def build_report(
     Raises
     ------
     InvalidInputError
-        If ``summary.json`` is missing or broken, or an optional file exists
-        but cannot be read; the message names the file.
+        If ``summary.json`` is missing or broken, a listed file is missing or cannot be
+        read (the message names the file), or ``out_name`` would overwrite a file of the run.
 
     Examples
     --------
-    >>> import json, tempfile, pathlib
+    >>> import tempfile, pathlib
+    >>> from kalmansfm.io import RunSummary, summary_json
+    >>> from kalmansfm.tracking import TrackerSettings
     >>> run = pathlib.Path(tempfile.mkdtemp())
-    >>> _ = (run / "summary.json").write_text(json.dumps({"input": "demo", "parameters": {"window_px": 7}}))
+    >>> summary = RunSummary(command="track", input="clip.mp4", settings=TrackerSettings(window=7))
+    >>> _ = (run / "summary.json").write_text(summary_json(summary))
     >>> path = build_report(run)
-    >>> path.name, "window_px" in path.read_text()
+    >>> path.name, "Tracker settings" in path.read_text()
     ('report.html', True)
     """
     name = Path(out_name)
     if name.name != out_name or not out_name or out_name in (".", ".."):
         raise InvalidInputError(f"out_name must be a plain file name; got {out_name!r}")
     run = load_run(run_dir)
+    if out_name == SUMMARY_FILE or out_name in run.summary.files:
+        raise InvalidInputError(f"--name {out_name} would overwrite the run's own {out_name}; choose another name")
     document = render_report(run, progress=progress)
     with output_directory(run.path) as out:
         out.write_text(out_name, document)

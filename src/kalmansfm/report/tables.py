@@ -1,74 +1,17 @@
 """Tables of a fusion experiment: truth, measurements and the fused (Kalman) estimate per iteration.
 
-:class:`FusionTable` holds the columns of one of the report's tables (Tasks 1-7 of
-``004_cd423c68da9c9743.txt``) for a quantity of any dimension d (d = 1 for a
-distance, d = 3 for a landmark); :func:`format_csv` and :func:`format_text` print it.
+:func:`format_csv` and :func:`format_text` print a
+:class:`~kalmansfm.experiments.fusion_tasks.FusionTable` (the columns of one of the
+report's tables, Tasks 1-7 of ``004_cd423c68da9c9743.txt``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
-
 import numpy as np
 
-from ..errors import InvalidInputError
+from ..experiments.fusion_tasks import FusionTable
 
-__all__ = ["FusionTable", "format_csv", "format_text"]
-
-
-@dataclass(frozen=True)
-class FusionTable:
-    """One fusion experiment, row k = after measurement k.
-
-    Attributes
-    ----------
-    task : int
-        The task number of the report.
-    title : str
-        A one-line title.
-    truth, measured, measured_std, estimate, estimate_std : (K, d) float64
-        Ground truth, measurement, standard deviation of the measurement noise,
-        fused estimate and the square roots of the diagonal of its covariance,
-        all in the sensor frame of iteration k. d = 1 for a scalar quantity.
-
-    Examples
-    --------
-    >>> t = FusionTable(1, "two readings", np.array([[10.0], [10.0]]), np.array([[10.2], [9.9]]),
-    ...                 np.ones((2, 1)), np.array([[10.2], [10.05]]), np.array([[1.0], [0.7071]]))
-    >>> t.iterations, t.dimension
-    (2, 1)
-    """
-
-    task: int
-    title: str
-    truth: np.ndarray
-    measured: np.ndarray
-    measured_std: np.ndarray
-    estimate: np.ndarray
-    estimate_std: np.ndarray
-
-    def __post_init__(self) -> None:
-        shape = None
-        for f in fields(self)[2:]:
-            value = np.asarray(getattr(self, f.name), dtype=np.float64)
-            if value.ndim != 2:
-                raise InvalidInputError(f"FusionTable.{f.name} must have shape (K, d); got {value.shape}")
-            shape = shape or (f.name, value.shape)
-            if value.shape != shape[1]:
-                raise InvalidInputError(
-                    f"FusionTable.{f.name} must have the shape of {shape[0]}, {shape[1]}; got {value.shape}"
-                )
-            object.__setattr__(self, f.name, value)
-
-    @property
-    def iterations(self) -> int:
-        """Number of rows K."""
-        return self.truth.shape[0]
-
-    @property
-    def dimension(self) -> int:
-        """Dimension d of the fused quantity."""
-        return self.truth.shape[1]
+__all__ = ["format_csv", "format_text"]
 
 
 def _axis_names(d: int) -> list[str]:

@@ -1,6 +1,6 @@
-"""Built-in data: the synthetic polyhedron scene and the published fusion experiments."""
+"""The built-in synthetic scene: a textured polyhedron with corner markers, rendered with exact ground truth."""
 
+from .files import write_scene
 from .polyhedron import SCENARIOS, Occluder, Scene, render_scene
-from .report_tracks import report_tracks
 
-__all__ = ["SCENARIOS", "Occluder", "Scene", "render_scene", "report_tracks"]
+__all__ = ["SCENARIOS", "Occluder", "Scene", "render_scene", "write_scene"]

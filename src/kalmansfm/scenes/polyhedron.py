@@ -28,7 +28,8 @@ import cv2
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import check_count
+from ..io.ground_truth import GroundTruth
+from .._validation import check_count
 
 __all__ = ["Occluder", "Scene", "render_scene", "SCENARIOS"]
 
@@ -143,6 +144,21 @@ class Scene:
     def image_size(self) -> tuple[int, int]:
         """(width, height) in pixels."""
         return int(self.frames.shape[2]), int(self.frames.shape[1])
+
+    def ground_truth(self) -> GroundTruth:
+        """The scene's ground truth as the record the ground-truth files hold."""
+        n_frames = self.n_frames
+        return GroundTruth(
+            track_ids=np.asarray(self.track_ids),
+            positions=self.positions,
+            visible=self.visible,
+            points_3d=self.points_3d,
+            rotation_rows=self.rotations[:, :2],
+            translations=self.translations,
+            scales=np.full(n_frames, self.scale),
+            occluder_boxes=self.occluder_boxes,
+            occluder_markers=self.occluder_marker_positions,
+        )
 
 
 # ---------------------------------------------------------------------------------------------

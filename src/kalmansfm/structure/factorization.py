@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import as_float_array, check_count
+from .._validation import as_float_array, check_count
 from .lowrank import truncated_svd
 
 __all__ = ["Reconstruction", "factorize", "metric_upgrade"]

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import as_float_array, check_finite
+from .._validation import as_float_array, check_finite
 from ..estimation.kalman import kalman_predict, kalman_update
 from .triangulation import TRIANGULATION_PARALLEL_RAYS, check_focal, check_motion, triangulate_midpoint
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..estimation._checks import as_float_array, check_finite, check_positive
+from .._validation import as_float_array, check_finite, check_positive
 
 __all__ = [
     "TRIANGULATION_OK",

@@ -26,15 +26,13 @@ import cv2
 import numpy as np
 import scipy.fft
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.stats import chi2
 
 from ..errors import InvalidInputError
+from .settings import SCORES
 
 __all__ = [
     "MatchResult",
     "PreparedFrame",
-    "gate_mask",
-    "gate_radius_for_probability",
     "match_templates",
     "prepare_frame",
     "refine_translation",
@@ -42,25 +40,6 @@ __all__ = [
     "sample_patches",
     "subpixel_peak",
 ]
-
-SCORES = ("ssd", "ncc")
-
-
-def gate_radius_for_probability(probability: float) -> float:
-    """Gate radius c such that a 2D Gaussian point falls in the gate with ``probability``.
-
-    c² is the ``probability`` quantile of the chi-square distribution with 2
-    degrees of freedom, because (p - p⁻)ᵀ Σ⁻¹ (p - p⁻) of a 2D Gaussian is χ²₂.
-
-    Examples
-    --------
-    >>> round(gate_radius_for_probability(0.95), 4)   # c² = 5.9915
-    2.4477
-    """
-    if not 0.0 < probability < 1.0:
-        raise InvalidInputError(f"gate probability must be in (0, 1); got {probability}")
-    return float(np.sqrt(chi2.ppf(probability, df=2)))
-
 
 @dataclass(frozen=True)
 class PreparedFrame:
@@ -197,28 +176,6 @@ def _gather_windows(array: np.ndarray, top_left_rc: np.ndarray, size: int) -> np
     """(N, size, size) copies of ``array[r:r+size, c:c+size]`` for each (r, c) row of ``top_left_rc``."""
     windows = sliding_window_view(array, (size, size))
     return windows[top_left_rc[:, 0], top_left_rc[:, 1]]
-
-
-def gate_mask(offsets: np.ndarray, inverse_covariances: np.ndarray, radius: float) -> np.ndarray:
-    """True where the offset d = p - p⁻ lies in the gate dᵀ Σ⁻¹ d ≤ c².
-
-    Parameters
-    ----------
-    offsets : (N, ..., 2) offsets (dx, dy) from each track's predicted position.
-    inverse_covariances : (N, 2, 2) inverses of the predicted position covariances.
-    radius : c.
-
-    Examples
-    --------
-    >>> inv = np.linalg.inv(np.array([[[4.0, 0.0], [0.0, 1.0]]]))   # σx = 2, σy = 1
-    >>> gate_mask(np.array([[[3.9, 0.0], [0.0, 2.1], [4.1, 0.0]]]), inv, 2.0)
-    array([[ True, False, False]])
-    """
-    d = np.asarray(offsets, dtype=np.float64)
-    n = d.shape[0]
-    flat = d.reshape(n, -1, 2)
-    mahalanobis_sq = np.einsum("npi,nij,npj->np", flat, inverse_covariances, flat)
-    return (mahalanobis_sq <= radius * radius).reshape(d.shape[:-1])
 
 
 # Least-squares fit of f = a + b x + c y + d x² + e x y + g y² on the 3×3 grid.

@@ -30,8 +30,6 @@ is exactly zero there.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from ..errors import InvalidInputError
@@ -39,31 +37,10 @@ from ..estimation.models import LinearGaussianModel, constant_velocity_2d
 from ..estimation.smoothing import FilterRun, smooth
 from .tracks import MEASURED, PREDICTED, Tracks
 
-__all__ = ["smooth_tracks", "tracker_model"]
+__all__ = ["smooth_tracks"]
 
 # (frames × tracks) per chunk of the backward pass: bounds the temporary (frames, chunk, 4, 4) arrays.
 _CHUNK_ELEMENTS = 1 << 20
-
-
-def tracker_model(parameters: dict[str, Any]) -> LinearGaussianModel:
-    """The constant-velocity model recorded in a tracker's ``parameters`` (defaults where absent).
-
-    Examples
-    --------
-    >>> m = tracker_model({"process_noise_diagonal": [1.0, 1.0, 0.25, 0.25]})
-    >>> np.diag(m.Q).tolist(), np.diag(m.R).tolist()
-    ([1.0, 1.0, 0.25, 0.25], [4.0, 4.0])
-    """
-    model = constant_velocity_2d()
-    matrices = {"Q": model.Q, "R": model.R, "P0": model.P0}
-    for key, name, size in (("process_noise_diagonal", "Q", 4), ("measurement_noise_diagonal", "R", 2),
-                            ("initial_covariance_diagonal", "P0", 4)):
-        if key in parameters and parameters[key] is not None:
-            diagonal = np.asarray(parameters[key], dtype=np.float64)
-            if diagonal.shape != (size,) or not np.all(np.isfinite(diagonal) & (diagonal > 0)):
-                raise InvalidInputError(f"parameters[{key!r}] must be {size} positive numbers; got {parameters[key]}")
-            matrices[name] = np.diag(diagonal)
-    return LinearGaussianModel(F=model.F, H=model.H, **matrices)
 
 
 def _chains(tracks: Tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,8 +101,8 @@ def _check_model(tracks: Tracks, x_prior: np.ndarray, P_prior: np.ndarray,
 
 
 def _columns(tracks: Tracks, cols: np.ndarray) -> Tracks:
-    return Tracks(positions=tracks.positions[:, cols], states=tracks.states[:, cols],
-                  covariances=tracks.covariances[:, cols], status=tracks.status[:, cols],
+    return Tracks(positions=tracks.positions[:, cols], states=tracks.states[:, cols],  # type: ignore[index]
+                  covariances=tracks.covariances[:, cols], status=tracks.status[:, cols],  # type: ignore[index]
                   track_ids=tracks.track_ids[cols])
 
 
@@ -176,9 +153,9 @@ def smooth_tracks(tracks: Tracks, *, model: LinearGaussianModel | None = None, l
     ----------
     tracks : the tracker's output (:func:`kalmansfm.track`, or a ``tracks.npz``); the
         states and full covariances are needed.
-    model : the tracker's motion model; default the constant-velocity model with the
-        noises recorded in ``tracks.parameters`` (:func:`tracker_model`), i.e. the
-        tracker's defaults when none are recorded.  Only F and Q are used.  A coasting
+    model : the tracker's motion model; default the model of ``tracks.settings`` (the
+        settings the tracker ran with), or the default constant-velocity model when the
+        tracks carry no settings.  Only F and Q are used.  A coasting
         frame whose covariance is not F Σ Fᵀ + Q of the frame before reveals a wrong
         model and raises.
     lag : None for fixed-interval smoothing (every frame uses all measurements of
@@ -189,7 +166,7 @@ def smooth_tracks(tracks: Tracks, *, model: LinearGaussianModel | None = None, l
     -------
     Tracks
         A new object with smoothed ``states``, ``covariances`` and ``positions``;
-        ``parameters["smoothed"]`` is True (fixed interval) or the lag.
+        ``smoothed`` is True (fixed interval) or the lag.
 
     Raises
     ------
@@ -207,7 +184,7 @@ def smooth_tracks(tracks: Tracks, *, model: LinearGaussianModel | None = None, l
     >>> frames = [world[20:80, 20 + k: 100 + k] for k in range(8)]   # 1 px left per frame
     >>> filtered = track(frames, np.array([[40.0, 30.0], [50.0, 20.0]]))
     >>> smoothed = smooth_tracks(filtered)
-    >>> smoothed.parameters["smoothed"], smoothed.status.tolist() == filtered.status.tolist()
+    >>> smoothed.smoothed, smoothed.status.tolist() == filtered.status.tolist()
     (True, True)
     >>> bool(np.all(smoothed.position_std[2:] <= filtered.position_std[2:] + 1e-12))   # never less certain
     True
@@ -216,13 +193,18 @@ def smooth_tracks(tracks: Tracks, *, model: LinearGaussianModel | None = None, l
         raise InvalidInputError(f"smooth_tracks expects Tracks (from kalmansfm.track); got {type(tracks).__name__}")
     if lag is not None and (isinstance(lag, bool) or int(lag) != lag or lag < 0):
         raise InvalidInputError(f"lag must be None or an integer >= 0 (frames); got {lag!r}")
-    if tracks.parameters.get("smoothed"):
+    if tracks.smoothed is not False:
         raise InvalidInputError(
-            f"these tracks are already smoothed (parameters['smoothed'] = {tracks.parameters['smoothed']!r}); "
-            f"smoothing needs the tracker's filtered tracks"
+            f"these tracks are already smoothed (smoothed = {tracks.smoothed!r}); smoothing needs the tracker's "
+            f"filtered tracks"
+        )
+    if tracks.states is None or tracks.covariances is None:
+        raise InvalidInputError(
+            "smoothing needs the tracker's states (F, P, 4) and covariances (F, P, 4, 4): a tracks.npz, not a "
+            "CSV of positions"
         )
     if model is None:
-        model = tracker_model(tracks.parameters)
+        model = tracks.settings.model if tracks.settings is not None else constant_velocity_2d()
     if model.F.shape != (4, 4) or model.Q.shape != (4, 4):
         raise InvalidInputError(f"model must have a 4-state F and Q; got F {model.F.shape}, Q {model.Q.shape}")
     start, last, has_chain = _chains(tracks)
@@ -242,14 +224,5 @@ def smooth_tracks(tracks: Tracks, *, model: LinearGaussianModel | None = None, l
         )
     positions = tracks.positions.copy()
     positions[changed] = states[changed][:, :2]
-    return Tracks(
-        positions=positions,
-        states=states,
-        covariances=covariances,
-        status=tracks.status.copy(),
-        track_ids=tracks.track_ids.copy(),
-        scores=None if tracks.scores is None else tracks.scores.copy(),
-        image_size=tracks.image_size,
-        parameters={**tracks.parameters, "smoothed": True if lag is None else int(lag)},
-    )
-
+    return tracks.replace(positions=positions, states=states, covariances=covariances,
+                          smoothed=True if lag is None else int(lag))

@@ -57,44 +57,31 @@ A track predicted where its window does not fit in the image is not measured.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from .._validation import as_float_array
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..estimation._checks import as_float_array, check_count
 from ..estimation.kalman import KalmanFilter
-from ..estimation.models import LinearGaussianModel, constant_velocity_2d
 from .detect import detect_corners
-from .matching import (
-    SCORES,
-    PreparedFrame,
-    TemplateSpectra,
-    gate_radius_for_probability,
-    match_templates,
-    prepare_frame,
-    refine_translation,
-    sample_patches,
-)
+from .matching import PreparedFrame, TemplateSpectra, match_templates, prepare_frame, refine_translation, sample_patches
+from .settings import TrackerSettings
 from .smoothing import smooth_tracks
 from .tracks import LOST, MEASURED, PREDICTED, Tracks
 
 __all__ = ["FrameEstimate", "Tracker", "track"]
 
-TEMPLATE_POLICIES = ("anchored", "first", "last")
-DEFAULT_MAX_DISSIMILARITY = {"ssd": 0.5, "ncc": 0.3}
-# The anchor must match much better than a mere "acceptable" match to be trusted as the
-# drift-free position (a poorly matching template's peak is biased); tuned on the built-in scene (ssd) and cmu_house (ncc).
-DEFAULT_ANCHOR_DISSIMILARITY = {"ssd": 0.3, "ncc": 0.05}
 # Innovation plausibility of every match: ‖z - p⁻‖² ≤ κ² (m + floor²), with m the track's
 # exponentially weighted mean squared innovation (weight of the newest frame below).
 _INNOVATION_FLOOR_PX = 1.5
 _INNOVATION_WEIGHT = 0.3
 # A new track's velocity comes from one frame difference: its first innovations may be a few pixels.
 _INITIAL_INNOVATION_SQ = 2.0
+# The second frame of a new track is found by an SSD search at this level (the report's start-up).
+_START_DISSIMILARITY = 0.5
 
 
 @dataclass(frozen=True)
@@ -144,36 +131,9 @@ class Tracker:
     points : (P, 2) positions (x, y) to track from the first frame fed, or None to
         detect corners there.
     track_ids : optional (P,) integer ids for ``points`` (default 0 … P-1).
-    window : odd side of the square template in pixels.
-    score : ``"ssd"`` or ``"ncc"``.
-    gate_probability : probability that the true position lies in the gate; c² is
-        the χ²₂ quantile (0.95 → c = 2.448).  Ignored when ``gate_radius`` is given.
-    gate_radius : the gate's c directly (Mahalanobis radius).
-    max_misses : a track coasts at most this many consecutive frames; the next miss loses it
-        (unless that frame holds a re-acquisition candidate, which gets one frame to be confirmed).
-    max_dissimilarity : a match is accepted when SSD / Σ(T - T̄)² (``ssd``) or
-        1 - NCC (``ncc``) is at most this (default 0.5 for ssd, 0.3 for ncc).  A
-        coasting track is searched with its anchor template and re-acquired only at
-        ``anchor_dissimilarity`` (policies "first" and "last": below the mean of the two).
-    template_policy : ``"anchored"`` (default), ``"first"`` or ``"last"`` (module docs).
-    model : the motion model (default :func:`~kalmansfm.models.constant_velocity_2d`).
-    max_features, quality_level, min_distance_px : corner detection settings when
-        ``points`` is None or ``redetect`` is on.
-    redetect : add corners in empty regions every ``redetect_every`` frames, with new ids,
-        up to ``max_features`` live tracks.
-    max_search_radius : the search box never exceeds this half-size in pixels.
-    anchor_dissimilarity : (``"anchored"`` policy) the anchor's match near the current
-        match is trusted when its dissimilarity is at most this (default 0.3 ssd, 0.05 ncc).
-    refine : polish each accepted match with a Gauss–Newton (Lucas–Kanade) translation
-        step against the template that produced it
-        (:func:`~kalmansfm.tracking.matching.refine_translation`); less biased than the
-        quadratic fit alone, which matters because templates are re-cut at the matches.
-    anchor_patience : (``"anchored"`` policy) after this many frames in a row without a
-        trusted anchor match, the current template becomes the new anchor (on the first
-        such frame where its own match is as clean as a trusted anchor's).
-    max_innovation_ratio : κ of the innovation test: a match is refused when
-        ‖z - p⁻‖² > κ² (k + 1) (m + (1.5 px)²), m the track's recent mean squared
-        innovation and k the frames it has coasted (module docs).
+    settings : :class:`~kalmansfm.tracking.settings.TrackerSettings` (window, score,
+        gate, misses, thresholds, motion model, detection, …); default settings when None.
+    **options : individual settings instead of (or on top of) ``settings``, e.g. ``window=15``.
 
     Examples
     --------
@@ -193,87 +153,14 @@ class Tracker:
         points: object | None = None,
         *,
         track_ids: object | None = None,
-        window: int = 11,
-        score: str = "ssd",
-        gate_probability: float = 0.95,
-        gate_radius: float | None = None,
-        max_misses: int = 3,
-        max_dissimilarity: float | None = None,
-        template_policy: str = "anchored",
-        model: LinearGaussianModel | None = None,
-        max_features: int = 200,
-        quality_level: float = 0.01,
-        min_distance_px: float = 10.0,
-        redetect: bool = False,
-        redetect_every: int = 5,
-        max_search_radius: int = 40,
-        anchor_dissimilarity: float | None = None,
-        anchor_patience: int = 4,
-        refine: bool = True,
-        max_innovation_ratio: float = 3.0,
+        settings: TrackerSettings | None = None,
+        **options: Any,
     ) -> None:
-        if int(window) != window or window < 3 or window % 2 == 0:
-            raise InvalidInputError(f"window must be an odd integer >= 3; got {window}")
-        if score not in SCORES:
-            raise InvalidInputError(f"score must be one of {SCORES}; got {score!r}")
-        if template_policy not in TEMPLATE_POLICIES:
-            raise InvalidInputError(f"template_policy must be one of {TEMPLATE_POLICIES}; got {template_policy!r}")
-        if gate_radius is not None:
-            if not (math.isfinite(gate_radius) and gate_radius > 0):
-                raise InvalidInputError(f"gate_radius must be a positive number; got {gate_radius}")
-            self.gate_radius = float(gate_radius)
-        else:
-            self.gate_radius = gate_radius_for_probability(gate_probability)
-        max_misses = check_count("max_misses", max_misses, 0)
-        if max_search_radius < 2:
-            raise InvalidInputError(f"max_search_radius must be >= 2; got {max_search_radius}")
-        self.window = int(window)
-        self.score = score
-        self.max_misses = int(max_misses)
-        self.max_dissimilarity = (
-            DEFAULT_MAX_DISSIMILARITY[score] if max_dissimilarity is None else float(max_dissimilarity)
-        )
-        self.template_policy = template_policy
-        self.refine = bool(refine)
-        self.anchor_dissimilarity = (
-            DEFAULT_ANCHOR_DISSIMILARITY[score] if anchor_dissimilarity is None else float(anchor_dissimilarity)
-        )
-        self.anchor_patience = check_count("anchor_patience", anchor_patience, 1)
-        if not (math.isfinite(max_innovation_ratio) and max_innovation_ratio > 0):
-            raise InvalidInputError(f"max_innovation_ratio must be a positive number; got {max_innovation_ratio}")
-        self.max_innovation_ratio = float(max_innovation_ratio)
-        # Halfway between "acceptable" and "trusted anchor".
-        self.reacquire_dissimilarity = 0.5 * (self.max_dissimilarity + self.anchor_dissimilarity)
-        self.model = constant_velocity_2d() if model is None else model
-        self.max_features = int(max_features)
-        self.quality_level = float(quality_level)
-        self.min_distance_px = float(min_distance_px)
-        self.redetect = bool(redetect)
-        self.redetect_every = max(1, int(redetect_every))
-        self.max_search_radius = int(max_search_radius)
-        self.parameters: dict[str, Any] = {
-            "window": self.window,
-            "score": score,
-            "gate_probability": None if gate_radius is not None else float(gate_probability),
-            "gate_radius": self.gate_radius,
-            "max_misses": self.max_misses,
-            "max_dissimilarity": self.max_dissimilarity,
-            "template_policy": template_policy,
-            "anchor_dissimilarity": self.anchor_dissimilarity,
-            "anchor_patience": self.anchor_patience,
-            "refine": self.refine,
-            "max_innovation_ratio": self.max_innovation_ratio,
-            "reacquire_dissimilarity": self.reacquire_dissimilarity,
-            "max_features": self.max_features,
-            "quality_level": self.quality_level,
-            "min_distance_px": self.min_distance_px,
-            "redetect": self.redetect,
-            "redetect_every": self.redetect_every,
-            "max_search_radius": self.max_search_radius,
-            "process_noise_diagonal": np.diag(self.model.Q).tolist(),
-            "measurement_noise_diagonal": np.diag(self.model.R).tolist(),
-            "initial_covariance_diagonal": np.diag(self.model.P0).tolist(),
-        }
+        self.settings = make_settings(settings, options)
+        s = self.settings
+        self.gate_radius = s.effective_gate_radius
+        self.model = s.model
+        self.window = s.window
 
         self._initial_points = None if points is None else self._check_points(points)
         self._initial_ids = None
@@ -358,7 +245,7 @@ class Tracker:
             points = self._initial_points
         else:
             points = detect_corners(
-                image, self.max_features, self.quality_level, self.min_distance_px, border_px=self.window // 2
+                image, self.settings.max_features, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2
             )
         if self._initial_ids is not None:
             ids = self._initial_ids
@@ -386,14 +273,14 @@ class Tracker:
         )
 
     def _next_frame(self, image: np.ndarray) -> None:
-        frame = prepare_frame(image, self.window, self.max_search_radius)
+        frame = prepare_frame(image, self.window, self.settings.max_search_radius)
         records: list[_FrameRecord] = []
         if self._kf is not None and len(self._ids):
             records.append(self._step_filter(frame))
         if len(self._pending_ids):
             records.append(self._start_filter(frame))
         record = _concatenate_records(records)
-        if self.redetect and self._frame_index % self.redetect_every == 0:
+        if self.settings.redetect and self._frame_index % self.settings.redetect_every == 0:
             new = self._detect_new(frame.image)
             if len(new):
                 ids = np.arange(self._next_id, self._next_id + len(new), dtype=np.int64)
@@ -403,12 +290,12 @@ class Tracker:
         self._records.append(record)
 
     def _detect_new(self, image: np.ndarray) -> np.ndarray:
-        room = self.max_features - len(self._ids)
+        room = self.settings.max_features - len(self._ids)
         if room <= 0:
             return np.zeros((0, 2))
         occupied = self._kf.x[:, :2] if self._kf is not None and len(self._ids) else np.zeros((0, 2))
         return detect_corners(
-            image, room, self.quality_level, self.min_distance_px, border_px=self.window // 2, exclude=occupied
+            image, room, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2, exclude=occupied
         )
 
     def _start_filter(self, frame: PreparedFrame) -> _FrameRecord:
@@ -416,9 +303,9 @@ class Tracker:
         n = len(self._pending_ids)
         P0_pos = np.broadcast_to(self.model.P0[:2, :2], (n, 2, 2))
         match = match_templates(
-            frame, self._pending_templates, self._pending_positions, P0_pos, self.gate_radius, "ssd", self.max_search_radius
+            frame, self._pending_templates, self._pending_positions, P0_pos, self.gate_radius, "ssd", self.settings.max_search_radius
         )
-        found = match.searched & (match.dissimilarity <= DEFAULT_MAX_DISSIMILARITY["ssd"])
+        found = match.searched & (match.dissimilarity <= _START_DISSIMILARITY)
         second = np.where(found[:, None], match.positions, self._pending_positions)
         # s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀]
         states = np.concatenate([second, second - self._pending_positions], axis=1)
@@ -471,7 +358,7 @@ class Tracker:
         predicted = kf.x_prior[:, :2].copy()
         prior_P = np.array(kf.P_prior)
         coasting = self._misses > 0
-        anchored = self.template_policy == "anchored"
+        anchored = self.settings.template_policy == "anchored"
         search_templates = self._templates
         if anchored and coasting.any():
             # The current template may have caught part of whatever hid the point: a
@@ -489,17 +376,17 @@ class Tracker:
                 has_candidate[:, None, None], np.eye(2) * (radius / self.gate_radius)[:, None, None] ** 2, search_covariances
             )
         match = match_templates(
-            frame, search_templates, search_centres, search_covariances, self.gate_radius, self.score, self.max_search_radius
+            frame, search_templates, search_centres, search_covariances, self.gate_radius, self.settings.score, self.settings.max_search_radius
         )
         z = match.positions.copy()
         dissimilarity = match.dissimilarity
-        found = match.searched & (dissimilarity <= self.max_dissimilarity)
+        found = match.searched & (dissimilarity <= self.settings.match_threshold)
         used = search_templates
         # A coasting track starts a re-acquisition only with a match at the strict level
         # (its anchor matching as well as a trusted anchor does, not merely acceptably), so
         # that it does not latch on to a look-alike in its grown gate; the next frame, whose
         # match must also lie where that candidate moved, needs only the acceptable level.
-        strict_level = self.anchor_dissimilarity if anchored else self.reacquire_dissimilarity
+        strict_level = self.settings.anchor_threshold if anchored else self.settings.reacquire_threshold
         strict = found & (dissimilarity <= strict_level)
         if anchored:
             confirmed = coasting & (strict | (found & has_candidate))
@@ -520,7 +407,7 @@ class Tracker:
         # gate but jumps against a streak of small innovations.  While coasting, the
         # prediction error grows about linearly with the frames missed.
         innovation_sq = np.sum((z - predicted) ** 2, axis=1)
-        scale_sq = self.max_innovation_ratio**2 * (1.0 + self._misses)
+        scale_sq = self.settings.max_innovation_ratio**2 * (1.0 + self._misses)
         plausible = innovation_sq <= scale_sq * (self._innovation_sq + _INNOVATION_FLOOR_PX**2)
         # A track predicted where its window does not fit in the image (leaving it) is not
         # measured: its gate is clipped to the image, and the best match of a clipped
@@ -532,7 +419,7 @@ class Tracker:
             (centre[:, 0] >= half_w) & (centre[:, 0] <= width - 1 - half_w) & (centre[:, 1] >= half_w) & (centre[:, 1] <= height - 1 - half_w)
         )
         good = accepted & plausible
-        if self.refine and good.any():
+        if self.settings.refine and good.any():
             z[good] = refine_translation(frame, used[good], z[good])
         good, new_candidate = self._confirm_reacquisitions(z, good, coasting, strict)
         if anchored:
@@ -549,7 +436,7 @@ class Tracker:
 
         misses = np.where(good, 0, self._misses + 1)
         # A candidate found on the last allowed frame gets one more frame to be confirmed.
-        lost = (misses > self.max_misses) & ~(new_candidate & (misses == self.max_misses + 1))
+        lost = (misses > self.settings.max_misses) & ~(new_candidate & (misses == self.settings.max_misses + 1))
         status = np.where(good, MEASURED, PREDICTED).astype(np.int8)
         status[lost] = LOST
         states = np.array(kf.x)
@@ -558,7 +445,7 @@ class Tracker:
         covariances[lost] = np.nan
         record = _FrameRecord(self._ids.copy(), states, covariances, status, dissimilarity)
 
-        if self.template_policy != "first" and good.any():
+        if self.settings.template_policy != "first" and good.any():
             fresh = sample_patches(frame, z[good], self.window)
             self._templates = self._templates.copy()
             self._templates[good] = fresh
@@ -600,7 +487,7 @@ class Tracker:
 
     def _confirmation_radius(self) -> np.ndarray:
         """κ √(m + floor²) per track: how far a confirming match may lie from where its candidate moved."""
-        return self.max_innovation_ratio * np.sqrt(self._innovation_sq + _INNOVATION_FLOOR_PX**2)
+        return self.settings.max_innovation_ratio * np.sqrt(self._innovation_sq + _INNOVATION_FLOOR_PX**2)
 
     def _anchor_check(
         self, frame: PreparedFrame, z: np.ndarray, tracking: np.ndarray, dissimilarity: np.ndarray
@@ -614,8 +501,8 @@ class Tracker:
         # get no prediction and are not searched (the anchor bank is indexed by track).
         around = np.where(tracking[:, None], z, np.nan)
         tight = np.broadcast_to(np.eye(2) * (2.0 / self.gate_radius) ** 2, (len(z), 2, 2))
-        anchor = match_templates(frame, self._anchor_bank, around, tight, self.gate_radius, self.score, 4)
-        agrees = tracking & anchor.searched & (anchor.dissimilarity <= self.anchor_dissimilarity)
+        anchor = match_templates(frame, self._anchor_bank, around, tight, self.gate_radius, self.settings.score, 4)
+        agrees = tracking & anchor.searched & (anchor.dissimilarity <= self.settings.anchor_threshold)
         z = np.where(agrees[:, None], anchor.positions, z)
         dissimilarity = np.where(agrees, anchor.dissimilarity, dissimilarity)
         return z, dissimilarity, agrees
@@ -637,7 +524,7 @@ class Tracker:
         strikes[confirmed] = 0
         unconfirmed = good & ~confirmed
         strikes[unconfirmed] += 1
-        renew = np.flatnonzero(unconfirmed & (strikes >= self.anchor_patience) & (dissimilarity <= self.anchor_dissimilarity))
+        renew = np.flatnonzero(unconfirmed & (strikes >= self.settings.anchor_patience) & (dissimilarity <= self.settings.anchor_threshold))
         if len(renew):
             self._anchor_bank = self._anchor_bank.replace(renew, sample_patches(frame, z[renew], self.window))
             strikes[renew] = 0
@@ -649,40 +536,57 @@ class Tracker:
 
     # -- result -----------------------------------------------------------------
     def result(self) -> Tracks:
-        """All frames fed so far as :class:`~kalmansfm.tracking.tracks.Tracks`."""
+        """All frames fed so far as :class:`~kalmansfm.tracking.tracks.Tracks`.
+
+        Columns follow the order in which the tracks were created (ids may be user-given
+        in any order).
+        """
         if not self._records:
             raise NotEnoughDataError("no frame was fed to the tracker")
-        all_ids = np.unique(np.concatenate([r.ids for r in self._records]))
-        # Keep the order in which tracks were created (ids may be user-given in any order).
-        first_seen: dict[int, int] = {}
-        for r in self._records:
-            for i in r.ids.tolist():
-                first_seen.setdefault(i, len(first_seen))
-        order = np.array(sorted(all_ids.tolist(), key=first_seen.__getitem__), dtype=np.int64)
-        column = {int(i): c for c, i in enumerate(order)}
+        ids = np.concatenate([r.ids for r in self._records])
+        frame_of = np.repeat(np.arange(len(self._records)), [len(r.ids) for r in self._records])
+        # Column of every record entry: ids ranked by their first appearance.
+        unique, first, column = np.unique(ids, return_index=True, return_inverse=True)
+        rank = np.empty(len(unique), np.int64)
+        rank[np.argsort(first, kind="stable")] = np.arange(len(unique))
+        column = rank[column]
+        order = unique[np.argsort(first, kind="stable")]
         F, P = len(self._records), len(order)
         tracks = Tracks.empty(F, P)
         scores = np.full((F, P), np.nan)
-        for f, r in enumerate(self._records):
-            cols = np.array([column[int(i)] for i in r.ids], dtype=np.intp)
-            if not len(cols):
-                continue
-            tracks.states[f, cols] = r.states
-            tracks.covariances[f, cols] = r.covariances
-            tracks.status[f, cols] = r.status
-            scores[f, cols] = r.scores
-        positions = tracks.states[..., :2].copy()
+        tracks.states[frame_of, column] = np.concatenate([r.states for r in self._records])
+        tracks.covariances[frame_of, column] = np.concatenate([r.covariances for r in self._records])
+        tracks.status[frame_of, column] = np.concatenate([r.status for r in self._records])
+        scores[frame_of, column] = np.concatenate([r.scores for r in self._records])
         height, width = self._shape  # type: ignore[misc]
         return Tracks(
-            positions=positions,
-            states=tracks.states,
-            covariances=tracks.covariances,
+            positions=tracks.states[..., :2].copy(),
             status=tracks.status,
             track_ids=order,
+            states=tracks.states,
+            covariances=tracks.covariances,
             scores=scores,
             image_size=(int(width), int(height)),
-            parameters=dict(self.parameters),
+            settings=self.settings,
         )
+
+
+def make_settings(settings: TrackerSettings | None, options: dict[str, Any]) -> TrackerSettings:
+    """``settings`` (default settings when None) with the keyword ``options`` applied on top.
+
+    Raises
+    ------
+    InvalidInputError
+        An option that is not a tracker setting, or an invalid value.
+    """
+    unknown = sorted(set(options) - set(TrackerSettings.option_names()))
+    if unknown:
+        raise InvalidInputError(f"unknown tracker option(s) {', '.join(unknown)}; the options are the fields of TrackerSettings")
+    if settings is None:
+        return TrackerSettings(**options)
+    if not isinstance(settings, TrackerSettings):
+        raise InvalidInputError(f"settings must be a TrackerSettings; got {type(settings).__name__}")
+    return replace(settings, **options) if options else settings
 
 
 def _concatenate_records(records: list[_FrameRecord]) -> _FrameRecord:
@@ -694,9 +598,11 @@ def _concatenate_records(records: list[_FrameRecord]) -> _FrameRecord:
 
 
 def track(
-    frames: object,
+    frames: Iterable[Any],
     points: object | None = None,
     *,
+    track_ids: object | None = None,
+    settings: TrackerSettings | None = None,
     progress: bool = False,
     smooth: bool | int = False,
     **options: Any,
@@ -705,19 +611,22 @@ def track(
 
     Parameters
     ----------
-    frames : a sequence or iterator of 2D grey arrays (uint8 or float), or a path
-        (folder of images, glob or video; see :func:`kalmansfm.io.frames.read_frames`).
+    frames : a sequence or iterator of 2D grey arrays (uint8 or float); to read a folder,
+        a glob or a video use :func:`kalmansfm.io.read_frames` first.
     points : (P, 2) positions (x, y) in frame 0, or None to detect corners.
+    track_ids : optional (P,) integer ids for ``points``.
+    settings : :class:`~kalmansfm.tracking.settings.TrackerSettings` (default settings when None).
     progress : show a tqdm progress bar on stderr.
     smooth : False (online estimates), True (Rauch–Tung–Striebel smoothing of each
         finished track over its whole life) or an int L (fixed-lag smoothing: frame t
         uses the frames up to t + L); see :func:`kalmansfm.tracking.smoothing.smooth_tracks`.
-    **options : passed to :class:`Tracker` (``window``, ``score``, ``gate_probability``,
-        ``gate_radius``, ``max_misses``, ``template_policy``, ``redetect``, …).
+    **options : individual settings on top of ``settings`` (``window``, ``score``,
+        ``gate_probability``, ``gate_radius``, ``max_misses``, ``template_policy``, ``redetect``, …).
 
     Returns
     -------
     Tracks
+        With ``settings`` the settings used.
 
     Raises
     ------
@@ -737,19 +646,19 @@ def track(
     [[36.0, 30.0], [46.0, 20.0]]
     """
     if isinstance(frames, (str, bytes)) or hasattr(frames, "__fspath__"):
-        from ..io.frames import read_frames
-
-        frames = read_frames(frames)  # type: ignore[arg-type]
+        raise InvalidInputError(
+            "frames must be images (arrays), not a path; read a folder, glob or video with kalmansfm.io.read_frames"
+        )
     total = getattr(frames, "count", None)
     if callable(total):  # list.count and tuple.count are methods, not a frame count
         total = None
     if total is None and hasattr(frames, "__len__"):
         total = len(frames)  # type: ignore[arg-type]
-    tracker = Tracker(points, **options)
+    tracker = Tracker(points, track_ids=track_ids, settings=settings, **options)
     try:
-        iterator: Iterable[Any] = iter(frames)  # type: ignore[call-overload]
+        iterator: Iterable[Any] = iter(frames)
     except TypeError:
-        raise InvalidInputError(f"frames must be an iterable of 2D arrays or a path; got {type(frames).__name__}") from None
+        raise InvalidInputError(f"frames must be an iterable of 2D arrays; got {type(frames).__name__}") from None
     if progress:
         from tqdm import tqdm
 
@@ -760,5 +669,4 @@ def track(
         raise NotEnoughDataError(f"tracking needs at least 3 frames; got {tracker.n_frames}")
     if smooth is False:
         return tracker.result()
-    return smooth_tracks(tracker.result(), model=tracker.model, lag=None if smooth is True else int(smooth))
-
+    return smooth_tracks(tracker.result(), lag=None if smooth is True else int(smooth))

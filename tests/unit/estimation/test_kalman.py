@@ -3,7 +3,7 @@ import pytest
 
 from kalmansfm import InvalidInputError, KalmanFilter, SingularCovarianceError
 from kalmansfm.estimation.kalman import kalman_update
-from kalmansfm.models import constant_velocity_2d, initial_state
+from kalmansfm.estimation.models import constant_velocity_2d, initial_state
 
 
 def textbook_step(x, P, z, F, H, Q, R):

@@ -6,7 +6,7 @@ from scipy.stats import multivariate_normal
 
 from kalmansfm import InvalidInputError, KalmanFilter
 from kalmansfm.estimation.kalman import innovation_statistics, kalman_predict, kalman_update
-from kalmansfm.models import constant_velocity_2d
+from kalmansfm.estimation.models import constant_velocity_2d
 
 
 def dense_reference(x0, P0, zs, F, H, Q, R, Rs=None, us=None):

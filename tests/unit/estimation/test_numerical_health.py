@@ -19,7 +19,7 @@ import pytest
 from kalmansfm.errors import InvalidInputError, SingularCovarianceError
 from kalmansfm.estimation import _decoupled
 from kalmansfm.estimation.kalman import KalmanFilter, kalman_update
-from kalmansfm.models import constant_velocity_2d
+from kalmansfm.estimation.models import constant_velocity_2d
 
 # Small process noise makes P shrink towards a badly conditioned steady state: the
 # regime where the simple update P = (I - KH) P loses symmetry and definiteness.

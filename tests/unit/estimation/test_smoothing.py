@@ -5,7 +5,7 @@ import pytest
 
 from kalmansfm import InvalidInputError, KalmanFilter
 from kalmansfm.estimation.smoothing import FilterRun, smooth
-from kalmansfm.models import constant_velocity_2d
+from kalmansfm.estimation.models import constant_velocity_2d
 
 
 def random_system(rng, n=3, m=2):

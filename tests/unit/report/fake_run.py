@@ -10,11 +10,24 @@ not depend on the tracker or the factorization.
 from __future__ import annotations
 
 import csv
-import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from kalmansfm.io.summary import (
+    RunSummary,
+    Similarity,
+    StructureMetrics,
+    TrackingMetrics,
+    TrackMetrics,
+    TruthComparison,
+    Versions,
+    read_summary,
+    summary_json,
+)
+from kalmansfm.tracking import TrackerSettings
 
 N_FRAMES, WIDTH, HEIGHT = 8, 64, 48
 TRACK_IDS = np.array([0, 1, 2, 3, 4])
@@ -131,42 +144,67 @@ def write_fake_run(
         cv2.imwrite(str(folder / "structure.png"), gradient.T.copy())
 
     errors = np.linalg.norm(positions - truth, axis=-1)
-    per_track = []
-    for p, track in enumerate(TRACK_IDS):
-        lost = np.flatnonzero(status[:, p] == 3)
-        per_track.append(
-            {
-                "track_id": int(track),
-                "frames_measured": int((status[:, p] == 1).sum()),
-                "frames_predicted": int((status[:, p] == 2).sum()),
-                "lost_at": int(lost[0]) if lost.size else None,
-                "rms_error_px": float(np.sqrt(np.nanmean(errors[:, p] ** 2))) if ground_truth else None,
-                "mean_std_px": float(np.sqrt(variances[:, p]).mean()),
-            }
+    files = ["tracks.npz", "tracks.csv", "motion.csv", "structure.csv"]
+    files += [f"frames/frame_{f:03d}.png" for f in range(N_FRAMES)] if frames else []
+    files += ["ground_truth_tracks.csv", "ground_truth_points.csv"] if ground_truth else []
+    files += ["fusion_tables/task1.csv"] if tables else []
+    files += ["covariance_trace.png", "structure.png"] if prerendered else []
+    per_track = tuple(
+        TrackMetrics(
+            track_id=int(track),
+            frames_measured=int((status[:, p] == 1).sum()),
+            frames_predicted=int((status[:, p] == 2).sum()),
+            lost_at=int(np.flatnonzero(status[:, p] == 3)[0]) if (status[:, p] == 3).any() else None,
+            mean_std_px=float(np.sqrt(variances[:, p]).mean()),
         )
-    summary = {
-        "kalmansfm_version": "0.1.0",
-        "command": "kalmansfm demo --out fake",
-        "created": "2024-01-02T03:04:05+00:00",
-        "input": "built-in scene (seed 0)" if ground_truth else "/data/<my video>.mp4",
-        "parameters": {"window_px": 7, "gate_probability": 0.95, "pixel_noise_std": 0.5, "note": "a<b & c"},
-        "timings_s": {"render": 0.12, "track": 0.5, "factorize": 0.01},
-        "tracking": {
-            "frames": N_FRAMES,
-            "tracks": n_points,
-            "fraction_tracked": float((status == 1).mean()),
-            "rms_error_px": float(np.sqrt(np.nanmean(errors**2))) if ground_truth else None,
-            "within_2px": float(np.nanmean(errors < 2.0)) if ground_truth else None,
-            "per_track": per_track,
-        },
-        "factorization": {
-            "singular_values": [310.0, 220.0, 95.0, 1.2, 0.8, 0.5, 0.3, 0.2, 0.1, 0.05],
-            "residual_rms_px": 0.41,
-            "warnings": ["track 4 was lost in frame 6; factorized the 4 complete tracks"],
-            "shape_error_pct": 1.9 if ground_truth else None,
-            "rotation_error_deg": [0.1 * f for f in range(N_FRAMES)] if ground_truth else None,
-        },
-        "ground_truth": ground_truth,
-    }
-    (folder / "summary.json").write_text(json.dumps(summary, indent=2))
+        for p, track in enumerate(TRACK_IDS)
+    )
+    truth_record = TruthComparison(
+        tracking_rms_error_px=float(np.sqrt(np.nanmean(errors**2))),
+        within_2px=float(np.nanmean(errors < 2.0)),
+        visible_measured_fraction=float((status == 1).mean()),
+        per_track_rms_error_px=tuple(float(np.sqrt(np.nanmean(errors[:, p] ** 2))) for p in range(n_points)),
+        shape_error_pct=1.9,
+        rotation_error_deg=tuple(0.1 * f for f in range(N_FRAMES)),
+        alignment=Similarity(scale=1.0 / SCALE_PX, rotation=tuple(map(tuple, np.eye(3))), translation=(0.0, 0.0, 0.0)),
+    )
+    summary = RunSummary(
+        command="kalmansfm demo --out fake",
+        input="built-in scene (seed 0)" if ground_truth else "/data/<my video>.mp4",
+        created="2024-01-02T03:04:05+00:00",
+        versions=Versions(kalmansfm="0.1.0"),
+        settings=TrackerSettings(window=7),
+        timings_s=(("render", 0.12), ("track", 0.5), ("factorize", 0.01)),
+        total_s=0.7,
+        tracking=TrackingMetrics(
+            frames=N_FRAMES,
+            tracks=n_points,
+            measured_fraction=float((status == 1).mean()),
+            alive_in_last_frame=int(np.isin(status[-1], (1, 2)).sum()),
+            survival_of_first_frame_tracks=float(np.isin(status[-1], (1, 2)).mean()),
+            lost=1,
+            mean_covariance_trace=tuple(float(v) for v in np.nanmean(np.trace(covariances, axis1=-2, axis2=-1), axis=1)),
+            per_track=per_track,
+        ),
+        structure=StructureMetrics(
+            method="als", frames=N_FRAMES, points=n_points, reconstructed_frames=N_FRAMES,
+            reconstructed_points=n_points, iterations=12,
+            singular_values=(310.0, 220.0, 95.0, 1.2, 0.8, 0.5, 0.3, 0.2, 0.1, 0.05), residual_rms_px=0.41,
+            weighted=True, smoothed=True,
+            warnings=("track 4 was lost in frame 6; factorized the 4 complete tracks", "a<b & c"),
+        ),
+        truth=truth_record if ground_truth else None,
+        files=tuple(files) + ("summary.json",),
+    )
+    (folder / "summary.json").write_text(summary_json(summary))
+    return folder
+
+
+def drop_files(folder: Path, *names: str) -> Path:
+    """Delete files of the run and take them off its summary's list, as if the run had not written them."""
+    summary = read_summary(folder / "summary.json")
+    for name in names:
+        (folder / name).unlink()
+    kept = tuple(f for f in summary.files if f not in names)
+    (folder / "summary.json").write_text(summary_json(replace(summary, files=kept)))
     return folder

@@ -3,18 +3,18 @@ import re
 
 import numpy as np
 import pytest
-from fake_run import N_FRAMES, TRACK_IDS, write_fake_run
+from fake_run import N_FRAMES, TRACK_IDS, drop_files, write_fake_run
 from report_checks import assert_self_contained, decode_png_data_uri
 
 from kalmansfm import InvalidInputError
-from kalmansfm.report import build_report, load_run
-from kalmansfm.report.figures import (
-    camera_rotations,
-    gate_ellipses,
-    render_tracked_frames,
-    track_error_per_frame,
-)
-from kalmansfm.report.run_folder import CameraMotion, TrackArrays
+from kalmansfm.io import RunSummary, load_run, summary_json
+from kalmansfm.io.structure import CameraMotion
+from kalmansfm.report import build_report
+from kalmansfm.report.drawing import gate_ellipses, render_tracked_frames
+from kalmansfm.report.figures import camera_rotations, track_error_per_frame
+from kalmansfm.tracking import TrackerSettings, Tracks
+
+_SUMMARY = summary_json(RunSummary(command="demo", input="x")).replace("\n", "")
 
 ALL_SECTIONS = [
     "parameters",
@@ -64,7 +64,7 @@ def test_header_values_are_escaped_and_numbers_shown(full_report):
     _, document = full_report
     assert "a&lt;b &amp; c" in document and "a<b & c" not in document
     assert "built-in scene (seed 0)" in document
-    assert "window_px" in document and "gate_probability" in document
+    assert "window" in document and "gate_probability" in document and "gate radius c (used)" in document
     assert "0.41 px" in document  # residual card
     assert "track 4 was lost in frame 6" in document  # factorization warning
 
@@ -82,7 +82,8 @@ def test_shape_payload_holds_points_truth_and_cameras(full_report):
 
 
 def test_summary_only_gives_just_the_header_and_parameters(tmp_path):
-    (tmp_path / "summary.json").write_text(json.dumps({"input": "x.mp4", "parameters": {"window_px": 9}}))
+    summary = RunSummary(command="track", input="x.mp4", settings=TrackerSettings(window=9))
+    (tmp_path / "summary.json").write_text(summary_json(summary))
     parsed = assert_self_contained(build_report(tmp_path).read_text())
     assert parsed.section_ids == ["parameters"]
     assert parsed.images == []
@@ -102,8 +103,7 @@ def test_optional_inputs_missing_omit_their_sections(tmp_path):
 
 def test_frames_without_tracks_show_the_raw_strip(tmp_path):
     run = write_fake_run(tmp_path / "run")
-    for name in ("tracks.npz", "structure.csv", "motion.csv"):
-        (run / name).unlink()
+    drop_files(run, "tracks.npz", "structure.csv", "motion.csv")
     parsed = assert_self_contained(build_report(run).read_text())
     assert parsed.section_ids[:2] == ["parameters", "sequence"]
     assert "shape" not in parsed.section_ids and "motion" not in parsed.section_ids
@@ -115,8 +115,11 @@ def test_frames_without_tracks_show_the_raw_strip(tmp_path):
         (None, r"summary\.json: not found"),
         ("{not json", r"summary\.json: is not valid JSON \(line 1"),
         ("[1, 2]", r"summary\.json: expected a JSON object"),
-        ('{"tracking": [1]}', r"summary\.json: field 'tracking' must be an object"),
-        ('{"tracking": {"per_track": 3}}', r"tracking\.per_track"),
+        ('{"command": "demo"}', r"summary\.json: schema_version None is not 2"),
+        (_SUMMARY[:-1] + ', "tracking": [1]}', r"summary\.json\.tracking: expected an object"),
+        (_SUMMARY[:-1] + ', "files": ["a.csv", 3]}', r"summary\.json\.files\[1\]: expected a string"),
+        (_SUMMARY[:-1] + ', "colour": "red"}', r"summary\.json: unknown field\(s\) colour"),
+        (_SUMMARY[:-1] + ', "files": ["tracks.npz"]}', r"lists tracks\.npz, which is missing"),
     ],
 )
 def test_bad_summary_raises_naming_the_file(tmp_path, content, expected):
@@ -140,9 +143,9 @@ def test_out_name_must_be_a_file_name(tmp_path):
 
 def _tracks_and_frames_only(run):
     """Drop the files whose sections need Matplotlib figures, to keep a test quick."""
-    for name in ("structure.csv", "motion.csv", "ground_truth_tracks.csv", "ground_truth_points.csv", "summary.json"):
-        (run / name).unlink()
-    (run / "summary.json").write_text(json.dumps({"input": "fake"}))
+    drop_files(run, "structure.csv", "motion.csv", "ground_truth_tracks.csv", "ground_truth_points.csv")
+    summary = load_run(run).summary
+    (run / "summary.json").write_text(summary_json(RunSummary(command="demo", input="fake", files=summary.files)))
     return run
 
 
@@ -150,7 +153,7 @@ def test_broken_optional_file_raises_and_keeps_the_old_report(tmp_path):
     run = _tracks_and_frames_only(write_fake_run(tmp_path / "run"))
     old = build_report(run).read_text()
     np.savez(run / "tracks.npz", positions=np.zeros((3, 2)), status=np.zeros(3), track_ids=np.zeros(3))
-    with pytest.raises(InvalidInputError, match=r"tracks\.npz: positions must have shape"):
+    with pytest.raises(InvalidInputError, match=r"tracks\.npz: positions must be a numeric \(frames, points, 2\) array"):
         build_report(run)
     assert (run / "report.html").read_text() == old
 
@@ -178,7 +181,7 @@ def test_ground_truth_tracks_are_matched_by_track_id(tmp_path):
 
 def test_gate_ellipse_of_correlated_covariance():
     covariance = np.array([[5.0, 3.0], [3.0, 5.0]])  # eigenvalues 8 along (1, 1) and 2 along (1, -1)
-    axes, angle = gate_ellipses(covariance, 0.95)
+    axes, angle = gate_ellipses(covariance, TrackerSettings().effective_gate_radius)
     chi2_95 = 5.991464547107979
     np.testing.assert_allclose(axes, np.sqrt(chi2_95 * np.array([8.0, 2.0])), rtol=1e-12)
     assert angle == pytest.approx(45.0)
@@ -188,12 +191,11 @@ def test_drawn_gate_passes_through_its_semi_axes():
     sigma_x, sigma_y = 4.0, 2.0
     covariance = np.zeros((1, 1, 4, 4))
     covariance[0, 0] = np.diag([sigma_x**2, sigma_y**2, 1.0, 1.0])
-    tracks = TrackArrays(
+    tracks = Tracks(
         positions=np.array([[[50.0, 40.0]]]),
         status=np.array([[1]]),
         track_ids=np.array([7]),
         covariances=covariance,
-        states=None,
     )
     frame = np.zeros((100, 100), np.uint8)
     (image,) = render_tracked_frames([frame], tracks, [0], target_width=100)

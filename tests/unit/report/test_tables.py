@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from kalmansfm import InvalidInputError
-from kalmansfm.report.tables import FusionTable, format_csv, format_text
+from kalmansfm.experiments import FusionTable
+from kalmansfm.report.tables import format_csv, format_text
 
 HEADER_3D = (
     "iter,truth_x,truth_y,truth_z,meas_x,meas_y,meas_z,meas_std_x,meas_std_y,meas_std_z,"

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kalmansfm import InvalidInputError
-from kalmansfm.scenes.fusion_tasks import available_tasks, load_task, rotation_about_y, run_task
+from kalmansfm.experiments.fusion_tasks import available_tasks, load_task, rotation_about_y, run_task
 
 
 @pytest.mark.parametrize("number, rows, d", [(1, 30, 1), (2, 20, 1), (3, 20, 1), (4, 20, 3), (5, 20, 3), (6, 24, 3)])

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from kalmansfm.scenes.fusion_tasks import load_task
-from kalmansfm.scenes.moving_camera import report_path
+from kalmansfm.experiments.fusion_tasks import load_task
+from kalmansfm.experiments.moving_camera import report_path
 
 # Table 7.1 (004_cd423c68da9c9743.txt), ground-truth X and Z for iterations 1..24; Y is 40.0 throughout.
 TABLE_7_1_TRUTH_XZ = [

@@ -1,6 +1,6 @@
 import numpy as np
 
-from kalmansfm.scenes import report_tracks
+from kalmansfm.experiments import report_tracks
 from kalmansfm.structure import factorize
 
 # Section 2.2 of the report: X_1 Y_1 X_2 Y_2 of the nine corners.

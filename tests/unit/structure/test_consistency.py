@@ -11,7 +11,7 @@ import pytest
 from scipy import stats
 
 from kalmansfm import InvalidInputError
-from kalmansfm.structure.consistency import (
+from kalmansfm.experiments.consistency import (
     consistency_from_errors,
     nees_interval,
     run_consistency,

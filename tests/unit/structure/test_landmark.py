@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kalmansfm import InvalidInputError, NotEnoughDataError, fuse_recursive
-from kalmansfm.scenes.moving_camera import report_path
+from kalmansfm.experiments.moving_camera import report_path
 from kalmansfm.structure.landmark import TRIANGULATION_NOT_OBSERVED, estimate_landmarks, project
 
 F = 500.0

@@ -7,14 +7,13 @@ from scipy.stats import chi2
 
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.tracking.matching import (
-    gate_mask,
-    gate_radius_for_probability,
     match_templates,
     prepare_frame,
     refine_translation,
     sample_patches,
     subpixel_peak,
 )
+from kalmansfm.tracking.settings import gate_radius_for_probability
 
 
 def textured(shape, seed, blur=1.5):
@@ -31,17 +30,25 @@ def test_gate_radius_is_chi_square_quantile():
         gate_radius_for_probability(1.0)
 
 
-def test_gate_mask_inside_and_outside_a_rotated_ellipse():
-    # Σ with axes 3 (along 30°) and 1 (across); c = 2 -> semi-axes 6 and 2.
+@pytest.mark.parametrize(
+    ("offset", "inside"),
+    # Σ with axes 3 (along 30°) and 1 (across), c = 2: squared Mahalanobis distances 3.79, 3.11, 3.79 inside;
+    # 5.14, 4.98, 12.9 outside.
+    [((5, 3), True), ((0, 2), True), ((-5, -3), True), ((6, 3), False), ((-1, 2), False), ((2, -3), False)],
+)
+def test_search_finds_the_template_exactly_inside_a_rotated_gate(offset, inside):
     angle = np.radians(30)
     u = np.array([np.cos(angle), np.sin(angle)])
     v = np.array([-u[1], u[0]])
     cov = 9 * np.outer(u, u) + 1 * np.outer(v, v)
-    inv = np.linalg.inv(cov)[None]
-    inside = [5.9 * u, -5.9 * u, 1.9 * v, -1.9 * v, 3 * u + 1.5 * v * np.sqrt(1 - 0.25)]
-    outside = [6.1 * u, 2.1 * v, 4.5 * u + 1.5 * v, 3 * v]
-    mask = gate_mask(np.array([inside + outside]), inv, 2.0)[0]
-    assert mask.tolist() == [True] * len(inside) + [False] * len(outside)
+    img = textured((90, 110), seed=3)
+    predicted = np.array([55.0, 45.0])
+    true = predicted + np.array(offset, float)
+    template = sample_patches(img, true[None], 11)
+    match = match_templates(prepare_frame(img, 11, 20), template, predicted[None], cov[None], 2.0)
+    # the integer candidate is exact; its sub-pixel fit may lean a little where the 3×3 neighbourhood meets the gate
+    found_there = np.linalg.norm(match.positions[0] - true) < 0.25 and match.dissimilarity[0] < 1e-6
+    assert found_there == inside
 
 
 def test_search_respects_the_gate():

@@ -11,8 +11,8 @@ from kalmansfm.estimation import smooth
 from kalmansfm.estimation.models import constant_velocity_2d
 from kalmansfm.io.tracks import read_tracks_csv, read_tracks_npz, write_tracks_csv, write_tracks_npz
 from kalmansfm.scenes import Occluder, render_scene
-from kalmansfm.tracking import LOST, MEASURED, PREDICTED, Tracks, track
-from kalmansfm.tracking.smoothing import smooth_tracks, tracker_model
+from kalmansfm.tracking import LOST, MEASURED, PREDICTED, TrackerSettings, Tracks, track
+from kalmansfm.tracking.smoothing import smooth_tracks
 
 MODEL = constant_velocity_2d()
 
@@ -87,8 +87,8 @@ def test_tracks_on_their_own_intervals_equal_smoothing_each_one_alone(lag):
     np.testing.assert_allclose(smoothed.covariances, covariances, rtol=1e-10, atol=1e-10)
     np.testing.assert_array_equal(smoothed.positions, smoothed.states[..., :2])
     np.testing.assert_array_equal(smoothed.status, tracks.status)
-    assert smoothed.parameters["smoothed"] == (True if lag is None else lag)
-    assert tracks.parameters == {}                                     # the input is not touched
+    assert smoothed.smoothed == (True if lag is None else lag)
+    assert tracks.smoothed is False                                     # the input is not touched
     if lag == 0:
         np.testing.assert_array_equal(smoothed.states, tracks.states)  # lag 0 is the filter itself
 
@@ -136,7 +136,7 @@ def test_a_wrong_motion_model_is_detected_on_a_coasting_frame():
         smooth_tracks(tracks, model=constant_velocity_2d(position_noise_std=1.0))
 
 
-def test_the_model_recorded_in_the_parameters_is_used():
+def test_the_model_recorded_in_the_settings_is_used(tmp_path):
     quiet = constant_velocity_2d(position_noise_std=1.0, velocity_noise_std=0.5)
     rng = np.random.default_rng(6)
     truth = np.cumsum(rng.normal(0, 1, (15, 1, 2)), axis=0) + 100
@@ -156,10 +156,13 @@ def test_the_model_recorded_in_the_parameters_is_used():
     tracks.positions[:] = tracks.states[..., :2]
     with pytest.raises(InvalidInputError, match="another motion model"):
         smooth_tracks(tracks)                                   # the default Q does not fit
-    recorded = Tracks(**{**tracks.__dict__, "parameters": {"process_noise_diagonal": np.diag(quiet.Q).tolist()}})
+    recorded = tracks.replace(settings=TrackerSettings(model=quiet))
     reference = smooth(run)
     np.testing.assert_allclose(smooth_tracks(recorded).states[2:], reference.x, rtol=1e-10, atol=1e-10)
-    np.testing.assert_allclose(tracker_model(recorded.parameters).Q, quiet.Q)
+    # the whole model travels with the tracks through tracks.npz
+    back = read_tracks_npz(write_tracks_npz(recorded, tmp_path / "tracks.npz"))
+    np.testing.assert_array_equal(back.settings.model.Q, quiet.Q)
+    np.testing.assert_allclose(smooth_tracks(back).states[2:], reference.x, rtol=1e-10, atol=1e-10)
 
 
 def test_bad_inputs_are_refused(tmp_path):
@@ -183,7 +186,7 @@ def test_bad_inputs_are_refused(tmp_path):
 def test_the_smoothed_marker_survives_a_tracks_npz_round_trip(tmp_path):
     tracks, _, _ = simulated_tracks(np.random.default_rng(8), 20, LIVES[:2])
     back = read_tracks_npz(write_tracks_npz(smooth_tracks(tracks, lag=4), tmp_path / "tracks.npz"))
-    assert back.parameters["smoothed"] == 4
+    assert back.smoothed == 4
     with pytest.raises(InvalidInputError, match="already smoothed"):
         smooth_tracks(back)
 
@@ -256,4 +259,4 @@ def test_track_with_smooth_equals_smoothing_its_result():
         expected = smooth_tracks(online, lag=lag)
         np.testing.assert_array_equal(smoothed.positions, expected.positions)
         np.testing.assert_array_equal(smoothed.covariances, expected.covariances)
-        assert smoothed.parameters["smoothed"] == (True if lag is None else lag)
+        assert smoothed.smoothed == (True if lag is None else lag)

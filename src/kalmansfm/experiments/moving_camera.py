@@ -7,7 +7,7 @@ x_{k+1} = C_k x_k - b_k (eq. 23), with rotations about the vertical
 resulting coordinates; the motion below reproduces every ground-truth row of
 Table 6.1 (24 rows) and Table 7.1 (24 rows) to their printed precision
 (``tests/unit/scenes/test_moving_camera.py``); it is Task 6's motion of
-:mod:`kalmansfm.scenes.fusion_tasks`, continued for one more step:
+:mod:`kalmansfm.experiments.fusion_tasks`, continued for one more step:
 
 * the landmark starts at (40, 40, 60) m in the first sensor frame;
 * C_k = R_y(+1°) for even k (0, 2, 4, ...) and R_y(-1°) for odd k, with
@@ -25,13 +25,41 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation._checks import check_count
-from .fusion_tasks import _alternating_yaw_and_forward_step
+from .._validation import check_count
 
-__all__ = ["CameraPath", "report_path"]
+__all__ = ["CameraPath", "report_path", "rotation_about_y", "yaw_and_forward_motion"]
 
 #: The landmark in the first sensor frame (Table 6.1, row 1), metres.
 REPORT_LANDMARK = (40.0, 40.0, 60.0)
+
+
+def rotation_about_y(angle_rad: float) -> np.ndarray:
+    """The 3×3 rotation by ``angle_rad`` about the y axis, [[c, 0, s], [0, 1, 0], [-s, 0, c]].
+
+    Examples
+    --------
+    >>> rotation_about_y(np.pi / 2).round(12) @ [1.0, 0.0, 0.0]
+    array([ 0.,  0., -1.])
+    """
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+
+def yaw_and_forward_motion(steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """The report's sensor motion for ``steps`` steps: C_k = R_y(±1°) alternating from +1°, b_k = (0, 0, 1) m.
+
+    This is Task 6's motion (and, continued, Task 7's): one definition serves both.
+
+    Examples
+    --------
+    >>> C, b = yaw_and_forward_motion(3)
+    >>> np.degrees(np.arcsin(C[:, 0, 2])).round(6).tolist(), b[0].tolist()
+    ([1.0, -1.0, 1.0], [0.0, 0.0, 1.0])
+    """
+    angles = np.where(np.arange(steps) % 2 == 0, 1.0, -1.0)
+    C = np.stack([rotation_about_y(np.radians(a)) for a in angles]) if steps else np.zeros((0, 3, 3))
+    return C, np.tile([0.0, 0.0, 1.0], (steps, 1))
 
 
 @dataclass(frozen=True)
@@ -72,8 +100,7 @@ def report_path(n_frames: int = 25) -> CameraPath:
     """
     n_frames = check_count("n_frames", n_frames, 2)
     steps = n_frames - 1
-    # The same motion as Task 6 in fusion_tasks (one definition of the path).
-    C, b = _alternating_yaw_and_forward_step(steps)
+    C, b = yaw_and_forward_motion(steps)
     x = np.empty((n_frames, 3))
     x[0] = REPORT_LANDMARK
     for k in range(steps):

@@ -1,10 +1,10 @@
-"""Validation of array arguments at the public boundary (shapes, finiteness, definiteness)."""
+"""Validation of arguments at the public boundary (shapes, finiteness, definiteness, counts), shared by every layer."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidInputError
+from .errors import InvalidInputError
 
 
 def as_float_array(name: str, value: object, *, dtype: type = np.float64) -> np.ndarray:

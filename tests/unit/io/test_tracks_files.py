@@ -3,7 +3,7 @@ import pytest
 
 from kalmansfm import InvalidInputError
 from kalmansfm.io.structure import motion_csv, structure_csv, structure_ply
-from kalmansfm.io.track_table import read_track_positions
+from kalmansfm.io.tracks import read_tracks
 
 TRACKER_HEADER = "frame,track_id,x,y,vx,vy,std_x,std_y,status\n"
 
@@ -18,21 +18,21 @@ def test_tracker_csv_uses_only_measured_rows(tmp_path):
         + "1,8,nan,nan,0,0,nan,nan,lost\n"
         + "2,3,12.0,22.0,1,1,2.5,2.5,measured\n"
     )
-    t = read_track_positions(f)
+    t = read_tracks(f)
     assert t.track_ids.tolist() == [3, 8] and t.frames.tolist() == [0, 1, 2]
-    np.testing.assert_array_equal(t.positions[0], [[10, 20], [30, 40]])
-    assert np.isnan(t.positions[1]).all()
-    np.testing.assert_array_equal(t.positions[2, 0], [12, 22])
-    np.testing.assert_array_equal(t.std[0, 1], [1.0, 0.5])
-    np.testing.assert_array_equal(t.weights[0, 1], [1.0, 4.0])
+    np.testing.assert_array_equal(t.observations()[0], [[10, 20], [30, 40]])
+    assert np.isnan(t.observations()[1]).all()
+    np.testing.assert_array_equal(t.observations()[2, 0], [12, 22])
+    np.testing.assert_array_equal(t.position_std[0, 1], [1.0, 0.5])
+    np.testing.assert_array_equal(t.observation_weights()[0, 1], [1.0, 4.0])
 
 
 def test_plain_csv_with_comments(tmp_path):
     f = tmp_path / "plain.csv"
     f.write_text("# made by hand\nframe,track_id,x,y\n1,1,5,6\n2,1,7,8\n")
-    t = read_track_positions(f)
-    assert t.std is None and t.weights is None
-    np.testing.assert_array_equal(t.positions[:, 0], [[5, 6], [7, 8]])
+    t = read_tracks(f)
+    assert t.position_std is None and t.observation_weights() is None
+    np.testing.assert_array_equal(t.observations()[:, 0], [[5, 6], [7, 8]])
 
 
 def make_npz(path, **overrides):
@@ -52,11 +52,11 @@ def make_npz(path, **overrides):
 def test_npz_uses_status_1_and_sorts_track_ids(tmp_path):
     f = tmp_path / "tracks.npz"
     arrays = make_npz(f)
-    t = read_track_positions(f)
+    t = read_tracks(f)
     assert t.track_ids.tolist() == [2, 5, 9]
-    np.testing.assert_array_equal(t.positions[:, 1], arrays["positions"][:, 0])  # track 5
-    assert np.isnan(t.positions[1, 0]).all() and np.isnan(t.positions[0, 2]).all()
-    np.testing.assert_allclose(t.std[0, 1], [2.0, 3.0])
+    np.testing.assert_array_equal(t.observations()[:, 1], arrays["positions"][:, 0])  # track 5
+    assert np.isnan(t.observations()[1, 0]).all() and np.isnan(t.observations()[0, 2]).all()
+    np.testing.assert_allclose(t.position_std[0, 1], [2.0, 3.0])
 
 
 @pytest.mark.parametrize(
@@ -79,7 +79,7 @@ def test_malformed_csv(tmp_path, text, message):
     f = tmp_path / "bad.csv"
     f.write_text(text)
     with pytest.raises(InvalidInputError, match=message) as err:
-        read_track_positions(f)
+        read_tracks(f)
     assert str(f) in str(err.value)
 
 
@@ -92,7 +92,7 @@ def test_malformed_csv(tmp_path, text, message):
         ({"track_ids": np.array([1, 2])}, "track_ids must be an integer \\(3,\\)"),
         ({"track_ids": np.array([1, 1, 2])}, "distinct"),
         ({"status": np.full((4, 3), 7)}, "status\\[0, 0\\] = 7"),
-        ({"covariances": np.zeros((4, 3, 2, 2))}, "covariances must have shape"),
+        ({"covariances": np.zeros((4, 3, 2, 2))}, "covariances must be a real numeric array of shape"),
         ({"positions": np.full((4, 3, 2), np.nan)}, "positions\\[0, 0\\].*not finite"),
     ],
 )
@@ -100,17 +100,17 @@ def test_malformed_npz(tmp_path, overrides, message):
     f = tmp_path / "bad.npz"
     make_npz(f, **overrides)
     with pytest.raises(InvalidInputError, match=message) as err:
-        read_track_positions(f)
+        read_tracks(f)
     assert str(f) in str(err.value)
 
 
 def test_missing_and_garbage_files(tmp_path):
     with pytest.raises(InvalidInputError, match="no such file"):
-        read_track_positions(tmp_path / "nope.csv")
+        read_tracks(tmp_path / "nope.csv")
     garbage = tmp_path / "x.npz"
     garbage.write_bytes(b"not a zip")
     with pytest.raises(InvalidInputError, match="not a readable NPZ"):
-        read_track_positions(garbage)
+        read_tracks(garbage)
 
 
 def parse_ascii_ply(text):

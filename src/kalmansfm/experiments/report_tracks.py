@@ -10,12 +10,13 @@ from __future__ import annotations
 
 from importlib.resources import as_file, files
 
-from ..io.track_table import TrackPositions, read_track_positions
+from ..io.tracks import read_tracks
+from ..tracking.tracks import Tracks
 
 __all__ = ["report_tracks"]
 
 
-def report_tracks() -> TrackPositions:
+def report_tracks() -> Tracks:
     """The report's 9 tracks × 30 frames (frames numbered 1–30, track ids 1–9).
 
     Examples
@@ -27,4 +28,4 @@ def report_tracks() -> TrackPositions:
     ([118.0, 78.0], [13.351, 78.999])
     """
     with as_file(files("kalmansfm") / "data" / "report_polyhedron_tracks.csv") as path:
-        return read_track_positions(path)
+        return read_tracks(path)

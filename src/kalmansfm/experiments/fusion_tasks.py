@@ -23,16 +23,71 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from importlib import resources
 
 import numpy as np
 
 from ..errors import InvalidInputError
 from ..estimation import fuse_recursive
-from ..report.tables import FusionTable
+from .moving_camera import rotation_about_y, yaw_and_forward_motion
 
-__all__ = ["FusionTask", "available_tasks", "load_task", "run_task", "rotation_about_y"]
+__all__ = ["FusionTable", "FusionTask", "available_tasks", "load_task", "run_task", "rotation_about_y"]
+
+
+@dataclass(frozen=True)
+class FusionTable:
+    """One fusion experiment, row k = after measurement k.
+
+    Attributes
+    ----------
+    task : int
+        The task number of the report.
+    title : str
+        A one-line title.
+    truth, measured, measured_std, estimate, estimate_std : (K, d) float64
+        Ground truth, measurement, standard deviation of the measurement noise,
+        fused estimate and the square roots of the diagonal of its covariance,
+        all in the sensor frame of iteration k. d = 1 for a scalar quantity.
+
+    Examples
+    --------
+    >>> t = FusionTable(1, "two readings", np.array([[10.0], [10.0]]), np.array([[10.2], [9.9]]),
+    ...                 np.ones((2, 1)), np.array([[10.2], [10.05]]), np.array([[1.0], [0.7071]]))
+    >>> t.iterations, t.dimension
+    (2, 1)
+    """
+
+    task: int
+    title: str
+    truth: np.ndarray
+    measured: np.ndarray
+    measured_std: np.ndarray
+    estimate: np.ndarray
+    estimate_std: np.ndarray
+
+    def __post_init__(self) -> None:
+        shape = None
+        for f in fields(self)[2:]:
+            value = np.asarray(getattr(self, f.name), dtype=np.float64)
+            if value.ndim != 2:
+                raise InvalidInputError(f"FusionTable.{f.name} must have shape (K, d); got {value.shape}")
+            shape = shape or (f.name, value.shape)
+            if value.shape != shape[1]:
+                raise InvalidInputError(
+                    f"FusionTable.{f.name} must have the shape of {shape[0]}, {shape[1]}; got {value.shape}"
+                )
+            object.__setattr__(self, f.name, value)
+
+    @property
+    def iterations(self) -> int:
+        """Number of rows K."""
+        return self.truth.shape[0]
+
+    @property
+    def dimension(self) -> int:
+        """Dimension d of the fused quantity."""
+        return self.truth.shape[1]
 
 
 @dataclass(frozen=True)
@@ -76,18 +131,6 @@ class FusionTask:
         return cov
 
 
-def rotation_about_y(angle_rad: float) -> np.ndarray:
-    """The 3×3 rotation by ``angle_rad`` about the y axis, [[c, 0, s], [0, 1, 0], [-s, 0, c]].
-
-    Examples
-    --------
-    >>> rotation_about_y(np.pi / 2).round(12) @ [1.0, 0.0, 0.0]
-    array([ 0.,  0., -1.])
-    """
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
 Motion = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 
@@ -107,19 +150,13 @@ def _half_turn_about_fixed_axis(steps: int) -> tuple[np.ndarray, np.ndarray]:
     return np.broadcast_to(C, (steps, 3, 3)).copy(), np.zeros((steps, 3))
 
 
-def _alternating_yaw_and_forward_step(steps: int) -> tuple[np.ndarray, np.ndarray]:
-    angles = np.where(np.arange(steps) % 2 == 0, 1.0, -1.0)
-    C = np.stack([rotation_about_y(np.radians(a)) for a in angles])
-    return C, np.tile([0.0, 0.0, 1.0], (steps, 1))
-
-
 _MOTIONS: dict[int, tuple[int, Motion]] = {
     1: (1, _static(1)),
     2: (1, _static(1)),
     3: (1, _walking_observer),
     4: (3, _static(3)),
     5: (3, _half_turn_about_fixed_axis),
-    6: (3, _alternating_yaw_and_forward_step),
+    6: (3, yaw_and_forward_motion),
 }
 
 

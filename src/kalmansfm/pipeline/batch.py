@@ -1,6 +1,6 @@
 """Many sequences at once: each one tracked and reconstructed as an independent Dask task.
 
-:func:`run_batch` submits one :func:`kalmansfm.pipeline.run_pipeline` call per
+:func:`run_batch` submits one :func:`kalmansfm.pipeline.run_demo` call per
 sequence to a ``dask.distributed`` cluster (a local one by default, or an
 existing scheduler), collects a row of results per sequence, and never lets a
 failing sequence stop the others.  A sequence whose run folder already holds a
@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import logging
 import os
 import re
@@ -21,8 +20,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from .errors import InvalidInputError, KalmanSfmError
-from .io.atomic import atomic_write, check_output_directory
+from ..errors import InvalidInputError, KalmanSfmError
+from ..io.atomic import atomic_write, check_output_directory
+from ..io.frames import read_frames
+from ..io.summary import SUMMARY_FILE, RunSummary, read_summary
+from .demo import run_demo
 
 __all__ = ["BatchRow", "BatchResult", "check_sequence", "run_batch", "SCENE_PREFIX"]
 
@@ -30,7 +32,7 @@ log = logging.getLogger("kalmansfm")
 
 #: ``scene:SEED`` names the built-in scene rendered with that seed instead of a path.
 SCENE_PREFIX = "scene:"
-SUMMARY_FILE = "batch_summary.csv"
+BATCH_SUMMARY_FILE = "batch_summary.csv"
 
 
 @dataclass(frozen=True)
@@ -121,31 +123,29 @@ def check_sequence(spec: str) -> None:
     kalmansfm.errors.InvalidInputError: sequence 'scene:x': the built-in scene is named scene:SEED with an integer seed
     """
     if _parse(spec)["input"] is not None:
-        from .io.frames import read_frames
-
         read_frames(spec)
 
 
-def _row_from_summary(spec: str, out_dir: str, status: str, summary: dict[str, Any], seconds: float | None) -> BatchRow:
-    t, f = summary.get("tracking", {}), summary.get("factorization", {})
+def _row_from_summary(spec: str, out_dir: str, status: str, summary: RunSummary, seconds: float | None) -> BatchRow:
+    t, f = summary.tracking, summary.structure
     return BatchRow(
         spec,
         out_dir,
         status,
-        frames=t.get("frames"),
-        tracks=t.get("tracks"),
-        fraction_tracked=t.get("fraction_tracked"),
-        residual_rms_px=f.get("residual_rms_px"),
+        frames=None if t is None else t.frames,
+        tracks=None if t is None else t.tracks,
+        fraction_tracked=None if t is None else t.measured_fraction,
+        residual_rms_px=None if f is None else f.residual_rms_px,
         seconds=seconds,
-        error=f.get("error"),
+        error=summary.structure_error,
     )
 
 
 def _finished_row(spec: str, folder: Path) -> BatchRow | None:
     """The row of an earlier, finished run of this sequence, or None if there is none."""
     try:
-        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        summary = read_summary(folder / SUMMARY_FILE)
+    except InvalidInputError:
         return None
     return _row_from_summary(spec, str(folder), "skipped", summary, None)
 
@@ -155,11 +155,9 @@ def process_sequence(spec: str, out_dir: str, options: dict[str, Any]) -> BatchR
 
     This is the function each Dask task runs; it is also usable on its own.
     """
-    from .pipeline import run_pipeline
-
     started = time.perf_counter()
     try:
-        result = run_pipeline(out_dir, command="batch", **_parse(spec), **options)
+        result = run_demo(out_dir, command="batch", **_parse(spec), **options)
     except (KalmanSfmError, OSError) as exc:
         return BatchRow(spec, out_dir, "failed", seconds=time.perf_counter() - started, error=str(exc))
     except Exception as exc:  # one broken sequence must not stop the batch
@@ -190,7 +188,7 @@ def run_batch(
     n_workers : local workers (default: the number of CPU cores).
     html : build each run's report.html.
     progress : a progress bar over sequences on stderr.
-    **pipeline_options : more keyword arguments of :func:`~kalmansfm.pipeline.run_pipeline`.
+    **pipeline_options : more keyword arguments of :func:`~kalmansfm.pipeline.run_demo`.
 
     Returns
     -------
@@ -264,5 +262,5 @@ def run_batch(
     writer.writeheader()
     for row in ordered:
         writer.writerow({k: "" if v is None else v for k, v in asdict(row).items()})
-    summary_path = atomic_write(root / SUMMARY_FILE, lambda p: p.write_text(buffer.getvalue(), encoding="utf-8"))
+    summary_path = atomic_write(root / BATCH_SUMMARY_FILE, lambda p: p.write_text(buffer.getvalue(), encoding="utf-8"))
     return BatchResult(ordered, summary_path)

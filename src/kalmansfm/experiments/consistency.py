@@ -31,13 +31,13 @@ import numpy as np
 from scipy import stats
 
 from ..errors import InvalidInputError
-from ..estimation._checks import check_count
+from .._validation import check_count
 from ..estimation.fusion import fuse_recursive
-from ..scenes.fusion_tasks import load_task
-from ..scenes.moving_camera import report_path
-from .landmark import METHODS, estimate_landmarks
+from ..structure.landmark import METHODS, estimate_landmarks
+from ..structure.triangulation import check_focal
+from .fusion_tasks import load_task
+from .moving_camera import report_path
 from .task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD, N_IMAGES, check_pixel_noise, simulate_observations
-from .triangulation import check_focal
 
 __all__ = [
     "ConsistencyResult",

@@ -1,6 +1,6 @@
 """Task 7 of the report as a simulation: a landmark triangulated from a moving camera.
 
-The camera follows the report's path (:func:`kalmansfm.scenes.moving_camera.report_path`,
+The camera follows the report's path (:func:`kalmansfm.experiments.moving_camera.report_path`,
 25 images, 24 pairs); the landmark is projected into every image with focal
 length ``focal`` and Gaussian noise of ``pixel_noise_std`` pixels is added to
 each image coordinate.  Each image is used by two consecutive pairs.
@@ -18,12 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..scenes.moving_camera import report_path
-from .landmark import METHODS, estimate_landmarks, project
-from ..estimation._checks import check_positive
-from .triangulation import check_focal
+from .._validation import check_positive
+from ..structure.landmark import METHODS, estimate_landmarks, project
+from ..structure.triangulation import check_focal
+from .fusion_tasks import FusionTable
+from .moving_camera import report_path
 
-__all__ = ["DEFAULT_FOCAL", "DEFAULT_PIXEL_NOISE_STD", "Task7Result", "simulate_task7", "simulate_observations"]
+__all__ = ["DEFAULT_FOCAL", "DEFAULT_PIXEL_NOISE_STD", "Task7Result", "simulate_task7", "simulate_observations", "task7_table"]
 
 DEFAULT_FOCAL = 500.0
 DEFAULT_PIXEL_NOISE_STD = 10.0
@@ -139,3 +140,21 @@ def simulate_task7(
         converged=est.converged[1:, 0],
         measurement_status=est.measurement_status[1:, 0],
     )
+
+
+def task7_table(
+    method: str = "pairs",
+    seed: int = 0,
+    focal: float = DEFAULT_FOCAL,
+    pixel_noise_std: float = DEFAULT_PIXEL_NOISE_STD,
+) -> FusionTable:
+    """Task 7 simulated once, as the report's table: the single-pair triangulation as the
+    measurement, the method's estimate as the Kalman columns.
+
+    Examples
+    --------
+    >>> task7_table("batch", seed=1).estimate.shape
+    (24, 3)
+    """
+    r = simulate_task7(method, seed, focal, pixel_noise_std)
+    return FusionTable(r.task, r.title, r.truth, r.measured, r.measured_std, r.estimate, r.estimate_std)

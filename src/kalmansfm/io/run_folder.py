@@ -1,0 +1,151 @@
+"""Read the files of a finished run folder, checking each one at the boundary.
+
+A run folder is what ``kalmansfm demo``, ``track``, ``reconstruct`` and ``scene`` write:
+``summary.json`` (:class:`~kalmansfm.io.summary.RunSummary`) plus the files it lists.
+:func:`load_run` reads only the files the summary lists, so nothing left in the folder by
+another run can enter a report.  Every reader raises
+:class:`~kalmansfm.InvalidInputError` naming the file, the row or the field when a file
+cannot be used; a file the run did not write is simply ``None``.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..tracking.tracks import Tracks
+from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
+from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
+from .summary import SUMMARY_FILE, RunSummary, read_summary
+from .tracks import read_tracks_npz
+
+__all__ = ["CsvTable", "RunFolder", "load_run", "RUN_FIGURES"]
+
+#: Pre-rendered figures a run may carry, embedded in the report as they are.
+RUN_FIGURES = ("covariance_trace.png", "tracks.png", "structure.png")
+
+_FRAME_NAME = re.compile(r"^frames/frame_(\d+)\.png$")
+
+
+@dataclass(frozen=True)
+class CsvTable:
+    """A CSV file shown verbatim (``fusion_tables/*.csv``)."""
+
+    name: str
+    header: list[str]
+    rows: list[list[str]]
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """Everything the report reads from one run folder; files the run did not write are ``None``.
+
+    Attributes
+    ----------
+    ground_truth_tracks : (F, P, 2) true positions in the order of ``tracks.track_ids``,
+        NaN where not visible (from ``ground_truth_tracks.csv``).
+    """
+
+    path: Path
+    summary: RunSummary
+    frame_paths: tuple[Path, ...]
+    tracks: Tracks | None
+    structure: PointTable | None
+    motion: CameraMotion | None
+    ground_truth_tracks: np.ndarray | None
+    ground_truth_points: PointTable | None
+    fusion_tables: tuple[CsvTable, ...]
+    figures: dict[str, Path]
+    data_files: tuple[str, ...]
+
+    def read_frames(self) -> list[np.ndarray]:
+        """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none."""
+        frames = []
+        for path in self.frame_paths:
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                raise InvalidInputError(f"{path}: cannot be read as a PNG image")
+            if image.dtype != np.uint8:
+                image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
+            if image.ndim == 3 and image.shape[2] == 4:
+                image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+            frames.append(image)
+        return frames
+
+
+def _read_csv_table(path: Path) -> CsvTable:
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = [row for row in csv.reader(handle) if row and not row[0].startswith("#")]
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{path}: is not UTF-8 text") from None
+    if not rows:
+        raise InvalidInputError(f"{path}: is empty; expected a header row and data rows")
+    return CsvTable(path.stem, rows[0], rows[1:])
+
+
+def load_run(run_dir: str | Path) -> RunFolder:
+    """Read every report input of a run folder: ``summary.json`` and the files it lists.
+
+    Parameters
+    ----------
+    run_dir : path
+        Folder with ``summary.json``; of the files it lists, these are read:
+        ``frames/frame_NNN.png``, ``tracks.npz``, ``structure.csv``, ``motion.csv``,
+        ``ground_truth_tracks.csv``, ``ground_truth_points.csv``, ``fusion_tables/*.csv``
+        and the pre-rendered figures ``covariance_trace.png``, ``tracks.png``, ``structure.png``.
+
+    Raises
+    ------
+    InvalidInputError
+        If ``run_dir`` is not a folder, ``summary.json`` is missing or broken, or a listed
+        file is missing or does not have its documented layout.
+    """
+    folder = Path(run_dir)
+    if not folder.is_dir():
+        raise InvalidInputError(f"run folder {folder} does not exist or is not a folder")
+    summary = read_summary(folder / SUMMARY_FILE)
+    listed = set(summary.files)
+    missing = sorted(name for name in listed if not (folder / name).is_file())
+    if missing:
+        raise InvalidInputError(
+            f"{folder}: the run's summary.json lists {', '.join(missing[:3])}{' …' if len(missing) > 3 else ''}, "
+            f"which {'is' if len(missing) == 1 else 'are'} missing"
+        )
+
+    def path_of(name: str) -> Path | None:
+        return folder / name if name in listed else None
+
+    tracks_path = path_of("tracks.npz")
+    tracks = read_tracks_npz(tracks_path) if tracks_path else None
+    truth_path = path_of(TRACKS_FILE)
+    ground_truth_tracks = None
+    if tracks is not None and truth_path is not None:
+        ground_truth_tracks = read_ground_truth_tracks(truth_path).aligned_to(tracks.track_ids)
+        if ground_truth_tracks.shape[0] != tracks.n_frames:
+            raise InvalidInputError(
+                f"{truth_path}: holds {ground_truth_tracks.shape[0]} frames but tracks.npz holds {tracks.n_frames}"
+            )
+    points = {name: read_points_table(path_of(name)) if path_of(name) else None for name in ("structure.csv", POINTS_FILE)}
+    motion_path = path_of("motion.csv")
+    frames = sorted((int(m.group(1)), folder / name) for name in listed if (m := _FRAME_NAME.match(name)))
+    return RunFolder(
+        path=folder,
+        summary=summary,
+        frame_paths=tuple(p for _, p in frames),
+        tracks=tracks,
+        structure=points["structure.csv"],
+        motion=read_motion_csv(motion_path) if motion_path else None,
+        ground_truth_tracks=ground_truth_tracks,
+        ground_truth_points=points[POINTS_FILE],
+        fusion_tables=tuple(_read_csv_table(folder / name) for name in sorted(listed) if
+                            name.startswith("fusion_tables/") and name.endswith(".csv")),
+        figures={name: folder / name for name in RUN_FIGURES if name in listed},
+        data_files=tuple(sorted(name for name in listed if "/" not in name and not name.endswith(".png"))),
+    )

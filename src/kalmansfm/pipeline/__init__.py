@@ -1,0 +1,41 @@
+"""One function per command: each ``kalmansfm`` subcommand is one call of this package.
+
+=====================  ========================================================
+command                library call
+=====================  ========================================================
+``kalmansfm demo``     :func:`run_demo` (frames → tracks → structure → report)
+``kalmansfm track``    :func:`run_track`
+``kalmansfm reconstruct``  :func:`run_reconstruct`
+``kalmansfm scene``    :func:`run_scene`
+``kalmansfm batch``    :func:`run_batch` (:func:`run_demo` per sequence, on Dask)
+``kalmansfm report``   :func:`kalmansfm.report.build_report`
+``kalmansfm tables``   :func:`kalmansfm.experiments.fusion_table`
+``kalmansfm consistency``  :func:`kalmansfm.experiments.run_consistency`
+=====================  ========================================================
+"""
+
+from .batch import BatchResult, BatchRow, run_batch
+from .demo import DemoRun, describe, run_demo
+from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, tracking_metrics
+from .reconstruct import ReconstructRun, read_tracks_for_factorization, run_reconstruct
+from .scene import run_scene
+from .track import TrackRun, run_track
+
+__all__ = [
+    "BatchResult",
+    "BatchRow",
+    "DemoRun",
+    "ReconstructRun",
+    "TrackRun",
+    "compare_with_truth",
+    "describe",
+    "factorize_tracks",
+    "read_tracks_for_factorization",
+    "run_batch",
+    "run_demo",
+    "run_reconstruct",
+    "run_scene",
+    "run_track",
+    "structure_metrics",
+    "tracking_metrics",
+]

@@ -1,0 +1,81 @@
+"""``kalmansfm track``: track points through a sequence read from disk and write the tracker's run folder."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..io.atomic import check_output_directory, output_directory
+from ..io.frames import read_frames
+from ..io.summary import RunSummary
+from ..io.tracks import check_points_inside, read_points_csv
+from ..tracking import TrackerSettings, Tracks, smooth_tracks, track
+from .evaluate import tracking_metrics
+from .stage import Stopwatch, stage_summary, stage_tracking
+
+__all__ = ["TrackRun", "run_track"]
+
+
+@dataclass(frozen=True)
+class TrackRun:
+    """The tracks of one ``track`` run and the summary written beside them."""
+
+    out_dir: Path
+    tracks: Tracks
+    summary: RunSummary
+
+
+def run_track(
+    input: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    points: str | os.PathLike[str] | None = None,
+    settings: TrackerSettings | None = None,
+    smooth: bool | int = False,
+    progress: bool = False,
+) -> TrackRun:
+    """Track points through ``input`` and write tracks.csv, tracks.npz, the pictures and summary.json to ``out_dir``.
+
+    Parameters
+    ----------
+    input : a folder of images (natural order), a glob or a video.
+    out_dir : the run folder (files appear together when the run succeeds).
+    points : a CSV with ``x,y[,track_id]`` of frame-0 points; None detects corners.
+    settings : the tracker's settings (default settings when None).
+    smooth : False, True (fixed-interval RTS smoothing) or a lag L (fixed-lag smoothing).
+    progress : a progress bar on stderr.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from kalmansfm.scenes import render_scene, write_scene
+    >>> scene_dir = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = write_scene(render_scene(n_frames=5), scene_dir)
+    >>> run = run_track(scene_dir, scene_dir / "out", points=scene_dir / "points.csv")
+    >>> run.summary.tracking.frames, "tracks.npz" in run.summary.files
+    (5, True)
+    """
+    check_output_directory(out_dir)
+    clock = Stopwatch()
+    frames = read_frames(input)
+    start = track_ids = None
+    if points is not None:
+        start, track_ids = read_points_csv(points)
+        first = next(iter(frames))
+        check_points_inside(start, first.shape[1], first.shape[0], str(points))
+    with clock.step("tracking"):
+        tracks = track(frames, start, track_ids=track_ids, settings=settings, progress=progress)
+    if smooth is not False:
+        with clock.step("smoothing"):
+            tracks = smooth_tracks(tracks, lag=None if smooth is True else int(smooth))
+    last_frame = None
+    for last_frame in frames:  # the last frame for the picture (frames are decoded lazily)
+        pass
+    summary = RunSummary(command="track", input=str(input), settings=tracks.settings, smoothed=tracks.smoothed,
+                         tracking=tracking_metrics(tracks))
+    with output_directory(out_dir) as out:
+        with clock.step("writing"):
+            names = stage_tracking(out, tracks, frames, last_frame=last_frame)  # type: ignore[arg-type]
+        summary = stage_summary(out, summary, clock, names)
+    return TrackRun(Path(out_dir), tracks, summary)

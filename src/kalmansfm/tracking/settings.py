@@ -1,0 +1,199 @@
+"""The tracker's settings: one frozen, validated object that travels with the tracks it made.
+
+Every default of the tracker is defined here, once: the command line shows these values in
+its ``--help``, :class:`~kalmansfm.tracking.tracker.Tracker` runs with them, the tracks
+carry them (``Tracks.settings``), ``tracks.npz`` and ``summary.json`` record them, and the
+report draws the gate they define.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+from scipy.stats import chi2
+
+from .._validation import check_count
+from ..errors import InvalidInputError
+from ..estimation.models import LinearGaussianModel, constant_velocity_2d
+
+__all__ = [
+    "DEFAULT_GATE_PROBABILITY",
+    "SCORES",
+    "TEMPLATE_POLICIES",
+    "TrackerSettings",
+    "gate_probability_for_radius",
+    "gate_radius_for_probability",
+]
+
+#: Probability that the true position lies inside the search gate (c² is its χ²₂ quantile).
+DEFAULT_GATE_PROBABILITY = 0.95
+SCORES = ("ssd", "ncc")
+TEMPLATE_POLICIES = ("anchored", "first", "last")
+# A match is accepted below this dissimilarity (SSD / template energy, or 1 - NCC).
+_DEFAULT_MAX_DISSIMILARITY = {"ssd": 0.5, "ncc": 0.3}
+# The anchor must match much better than a mere "acceptable" match to be trusted as the
+# drift-free position (a poorly matching template's peak is biased); tuned on the built-in
+# scene (ssd) and cmu_house (ncc).
+_DEFAULT_ANCHOR_DISSIMILARITY = {"ssd": 0.3, "ncc": 0.05}
+
+
+def gate_radius_for_probability(probability: float) -> float:
+    """Gate radius c such that a 2D Gaussian point falls in the gate with ``probability``.
+
+    c² is the ``probability`` quantile of the chi-square distribution with 2
+    degrees of freedom, because (p - p⁻)ᵀ Σ⁻¹ (p - p⁻) of a 2D Gaussian is χ²₂.
+
+    Examples
+    --------
+    >>> round(gate_radius_for_probability(0.95), 4)   # c² = 5.9915
+    2.4477
+    """
+    if not 0.0 < probability < 1.0:
+        raise InvalidInputError(f"gate probability must be in (0, 1); got {probability}")
+    return float(np.sqrt(chi2.ppf(probability, df=2)))
+
+
+def gate_probability_for_radius(radius: float) -> float:
+    """Probability mass of a 2D Gaussian inside the gate of Mahalanobis radius c: 1 - exp(-c²/2).
+
+    Examples
+    --------
+    >>> round(gate_probability_for_radius(gate_radius_for_probability(0.9)), 12)
+    0.9
+    """
+    return float(-np.expm1(-0.5 * radius * radius))
+
+
+def _positive(name: str, value: float) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InvalidInputError(f"{name} must be a number; got {value!r}")
+    if not (math.isfinite(value) and value > 0):
+        raise InvalidInputError(f"{name} must be a positive number; got {value}")
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """How the Kalman-gated template tracker runs (see :mod:`kalmansfm.tracking.tracker`).
+
+    Attributes
+    ----------
+    window : odd side of the square template, pixels.
+    score : ``"ssd"`` or ``"ncc"``.
+    gate_probability : probability that the true position lies in the gate; c² is its
+        χ²₂ quantile (0.95 → c = 2.448).  Ignored when ``gate_radius`` is given.
+    gate_radius : the gate's Mahalanobis radius c directly, or None.
+    max_misses : a track coasts at most this many consecutive frames; the next miss
+        loses it (unless that frame holds a re-acquisition candidate, which gets one
+        frame to be confirmed).
+    max_dissimilarity : a match is accepted at most at this dissimilarity (SSD / Σ(T - T̄)²
+        for ``ssd``, 1 - NCC for ``ncc``); None: 0.5 (ssd), 0.3 (ncc).
+    template_policy : ``"anchored"`` (default), ``"first"`` or ``"last"``.
+    model : the motion model (default: the report's constant-velocity model).
+    max_features, quality_level, min_distance_px : corner detection when no start points
+        are given or ``redetect`` is on.
+    redetect : add corners in empty regions every ``redetect_every`` frames, new ids,
+        up to ``max_features`` live tracks.
+    redetect_every : frames between two redetections.
+    max_search_radius : the search box never exceeds this half-size, pixels.
+    anchor_dissimilarity : the anchor's match is trusted at most at this dissimilarity;
+        None: 0.3 (ssd), 0.05 (ncc).
+    anchor_patience : frames in a row without a trusted anchor match before the current
+        template becomes the new anchor.
+    refine : polish accepted matches with a Gauss–Newton translation step.
+    max_innovation_ratio : κ of the innovation plausibility test.
+
+    Examples
+    --------
+    >>> s = TrackerSettings(score="ncc", gate_probability=0.99)
+    >>> round(s.effective_gate_radius, 3), s.match_threshold, s.anchor_threshold
+    (3.035, 0.3, 0.05)
+    >>> TrackerSettings(window=4)
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: window must be an odd integer >= 3; got 4
+    """
+
+    window: int = 11
+    score: str = "ssd"
+    gate_probability: float = DEFAULT_GATE_PROBABILITY
+    gate_radius: float | None = None
+    max_misses: int = 3
+    max_dissimilarity: float | None = None
+    template_policy: str = "anchored"
+    model: LinearGaussianModel = field(default_factory=constant_velocity_2d)
+    max_features: int = 200
+    quality_level: float = 0.01
+    min_distance_px: float = 10.0
+    redetect: bool = False
+    redetect_every: int = 5
+    max_search_radius: int = 40
+    anchor_dissimilarity: float | None = None
+    anchor_patience: int = 4
+    refine: bool = True
+    max_innovation_ratio: float = 3.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.window, bool) or int(self.window) != self.window or self.window < 3 or self.window % 2 == 0:
+            raise InvalidInputError(f"window must be an odd integer >= 3; got {self.window}")
+        object.__setattr__(self, "window", int(self.window))
+        if self.score not in SCORES:
+            raise InvalidInputError(f"score must be one of {SCORES}; got {self.score!r}")
+        if self.template_policy not in TEMPLATE_POLICIES:
+            raise InvalidInputError(f"template_policy must be one of {TEMPLATE_POLICIES}; got {self.template_policy!r}")
+        if self.gate_radius is not None:
+            _positive("gate_radius", self.gate_radius)
+            # c² must stay a normal positive float for the search's squared distances
+            if not 1e-6 <= self.gate_radius <= 1e6:
+                raise InvalidInputError(f"gate_radius must be between 1e-06 and 1e+06; got {self.gate_radius}")
+        else:
+            gate_radius_for_probability(self.gate_probability)  # raises outside (0, 1)
+        for name, minimum in (("max_misses", 0), ("max_features", 1), ("redetect_every", 1), ("anchor_patience", 1)):
+            object.__setattr__(self, name, check_count(name, getattr(self, name), minimum))
+        if check_count("max_search_radius", self.max_search_radius, 0) < 2:
+            raise InvalidInputError(f"max_search_radius must be >= 2; got {self.max_search_radius}")
+        for name in ("quality_level", "min_distance_px", "max_innovation_ratio"):
+            _positive(name, getattr(self, name))
+        for name in ("max_dissimilarity", "anchor_dissimilarity"):
+            if getattr(self, name) is not None:
+                _positive(name, getattr(self, name))
+        if not isinstance(self.model, LinearGaussianModel):
+            raise InvalidInputError(f"model must be a LinearGaussianModel; got {type(self.model).__name__}")
+        if self.model.F.shape != (4, 4) or self.model.H.shape != (2, 4):
+            raise InvalidInputError(
+                f"the tracker's model must have a 4-state F and a 2×4 H (x, y measured); got F {self.model.F.shape}, "
+                f"H {self.model.H.shape}"
+            )
+
+    @property
+    def effective_gate_radius(self) -> float:
+        """The gate's Mahalanobis radius c: ``gate_radius`` if given, else from ``gate_probability``."""
+        return float(self.gate_radius) if self.gate_radius is not None else gate_radius_for_probability(self.gate_probability)
+
+    @property
+    def effective_gate_probability(self) -> float:
+        """Probability mass inside the gate actually used (from ``gate_radius`` when it is given)."""
+        return gate_probability_for_radius(self.effective_gate_radius)
+
+    @property
+    def match_threshold(self) -> float:
+        """The dissimilarity at which a match is accepted (``max_dissimilarity`` or the score's default)."""
+        return _DEFAULT_MAX_DISSIMILARITY[self.score] if self.max_dissimilarity is None else float(self.max_dissimilarity)
+
+    @property
+    def anchor_threshold(self) -> float:
+        """The dissimilarity at which the anchor is trusted (``anchor_dissimilarity`` or the score's default)."""
+        if self.anchor_dissimilarity is None:
+            return _DEFAULT_ANCHOR_DISSIMILARITY[self.score]
+        return float(self.anchor_dissimilarity)
+
+    @property
+    def reacquire_threshold(self) -> float:
+        """Halfway between "acceptable" and "trusted anchor": re-acquisition level of the non-anchored policies."""
+        return 0.5 * (self.match_threshold + self.anchor_threshold)
+
+    @classmethod
+    def option_names(cls) -> tuple[str, ...]:
+        """The names of the settings (the keyword options of :func:`kalmansfm.track`)."""
+        return tuple(f.name for f in fields(cls))
