@@ -91,6 +91,13 @@ REJECTION_NAMES = {
 #: a pyramid of L levels above the image captures displacements of about this times 2^L px (window 7–21)
 CAPTURE_PX = 4.0
 _LK_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+# Floor of the residual variance σ² (grey levels²): two 8-bit patches, each rounded with
+# variance 1/12, never agree better than this, and R = σ² H⁻¹ must stay positive definite.
+_QUANTIZATION_VARIANCE = 2.0 / 12.0
+# Gaussian weight (px) on the alignment's pixels around the point: the window's rim, where
+# background behind a corner moves differently, counts less (cmu_house 0.911 → 0.929 within
+# 3 px, the scene 0.38 → 0.32 px RMS; docs/tracking.md).
+_CENTRE_SIGMA_PX = 3.0
 
 
 @dataclass(frozen=True)
@@ -208,11 +215,25 @@ def _template_terms(templates: np.ndarray) -> _TemplateTerms:
     return _TemplateTerms(inner, gradients, norm, inverse, well_posed, min_eigenvalue)
 
 
-def _compare(terms: _TemplateTerms, patches: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """NCC, residual variance σ² and Gauss–Newton step of templates against patches of the same (w - 2)² size.
+@dataclass(frozen=True)
+class _Fit:
+    ncc: np.ndarray
+    sigma_sq: np.ndarray
+    step: np.ndarray
+    covariance: np.ndarray
 
-    The residual is r = T̃ - g Ĩ with the gain g = ‖T̃‖ / ‖Ĩ‖ (T̃, Ĩ minus their means);
-    σ² = Σ r² / (n - 4) (translation, gain and offset fitted); the step is H⁻¹ Σ ∇T r.
+
+def _compare(terms: _TemplateTerms, patches: np.ndarray) -> _Fit:
+    """Templates against patches of the same (w - 2)² size: NCC, residual variance, Gauss–Newton step, covariance.
+
+    The residual is r = T̃ - g Ĩ with the gain g = ‖T̃‖ / ‖Ĩ‖ (T̃, Ĩ minus their means).
+    Pixels that do not move with the point (background behind a corner, the edge of an
+    occluder) are down-weighted by Tukey's biweight (1 - (r / c)²)², c = 4.685 s, with
+    s = 1.4826 median|r| (at least the rounding noise), times a Gaussian of σ = 3 px around
+    the centre; with these weights w the step is (Σ w ∇T ∇Tᵀ)⁻¹ Σ w ∇T r,
+    σ² = Σ w r² / (Σ w - 4) (translation, gain and offset fitted), at least the rounding
+    noise of two 8-bit patches, and the covariance σ² (Σ w ∇T ∇Tᵀ)⁻¹ (NaN where singular).
+    The NCC weighs the pixels by the same Gaussian (not by the residuals).
     """
     n = patches.shape[0]
     patch = patches.reshape(n, -1)
@@ -220,18 +241,31 @@ def _compare(terms: _TemplateTerms, patches: np.ndarray) -> tuple[np.ndarray, np
     p_norm = np.sqrt(np.einsum("ni,ni->n", patch, patch).astype(np.float64))
     gain = np.where(p_norm > 1e-9, terms.norm / np.maximum(p_norm, 1e-9), 1.0)
     residual = terms.inner - gain.astype(np.float32)[:, None] * patch
-    ncc = np.einsum("ni,ni->n", terms.inner, patch) / np.maximum(terms.norm * p_norm, 1e-12)
-    sigma_sq = np.einsum("ni,ni->n", residual, residual).astype(np.float64) / max(patch.shape[1] - 4, 1)
-    b = (terms.gradients @ residual[:, :, None])[:, :, 0].astype(np.float64)
-    step = np.where(terms.well_posed[:, None], np.einsum("nij,nj->ni", terms.inverse, b), 0.0)
-    return ncc, sigma_sq, step
-
-
-def _covariance(terms: _TemplateTerms, sigma_sq: np.ndarray) -> np.ndarray:
-    """σ² H⁻¹ per template (px²), NaN where H is singular."""
-    covariances = sigma_sq[:, None, None] * terms.inverse
-    covariances[~terms.well_posed] = np.nan
-    return covariances
+    scale = np.maximum(1.4826 * np.median(np.abs(residual), axis=1), np.float32(np.sqrt(_QUANTIZATION_VARIANCE)))
+    u = residual / (np.float32(4.685) * scale[:, None])
+    weights = np.where(np.abs(u) < 1, (1 - u * u) ** 2, np.float32(0.0))
+    side = int(round(np.sqrt(patch.shape[1])))
+    g = np.exp(-0.5 * ((np.arange(side) - side // 2) / _CENTRE_SIGMA_PX) ** 2).astype(np.float32)
+    centre = np.outer(g, g).ravel()
+    weights = weights * centre[None, :]
+    # NCC with the same weight on the centre (the point's own appearance, less its surroundings).
+    t_c, p_c = terms.inner * centre, patch * centre
+    ncc = np.einsum("ni,ni->n", t_c, patch).astype(np.float64) / np.sqrt(
+        np.maximum(np.einsum("ni,ni->n", t_c, terms.inner).astype(np.float64) * np.einsum("ni,ni->n", p_c, patch), 1e-12)
+    )
+    weighted = weights * residual
+    sigma_sq = np.einsum("ni,ni->n", weighted, residual).astype(np.float64) / np.maximum(weights.sum(axis=1).astype(np.float64) - 4.0, 1.0)
+    sigma_sq = np.maximum(sigma_sq, _QUANTIZATION_VARIANCE)
+    H = ((terms.gradients * weights[:, None, :]) @ np.swapaxes(terms.gradients, 1, 2)).astype(np.float64)
+    hxx, hxy, hyy = H[:, 0, 0], H[:, 0, 1], H[:, 1, 1]
+    det = hxx * hyy - hxy * hxy
+    well_posed = terms.well_posed & (det > 1e-9 * np.maximum(hxx + hyy, 1e-12) ** 2)
+    inverse = np.stack([hyy, -hxy, -hxy, hxx], axis=1).reshape(n, 2, 2) / np.where(well_posed, det, 1.0)[:, None, None]
+    b = (terms.gradients @ weighted[:, :, None])[:, :, 0].astype(np.float64)
+    step = np.where(well_posed[:, None], np.einsum("nij,nj->ni", inverse, b), 0.0)
+    covariance = sigma_sq[:, None, None] * inverse
+    covariance[~well_posed] = np.nan
+    return _Fit(ncc, sigma_sq, step, covariance)
 
 
 def _take_terms(terms: _TemplateTerms, index: np.ndarray) -> _TemplateTerms:
@@ -360,16 +394,15 @@ def align_templates(
     patches = frame.patches(start, w) if start_patches is None else start_patches
     current = start.copy()
     for _ in range(iterations):
-        _, _, step = _compare(terms, patches[:, 1:-1, 1:-1])
-        current = current + step
+        current = current + _compare(terms, patches[:, 1:-1, 1:-1]).step
         patches = frame.patches(current, w)
     converged = np.linalg.norm(current - start, axis=1) <= max_shift_px
     if not converged.all():
         current[~converged] = start[~converged]
         patches = patches.copy()
         patches[~converged] = frame.patches(start[~converged], w)
-    ncc, sigma_sq, _ = _compare(terms, patches[:, 1:-1, 1:-1])
-    return Alignment(current, ncc, _covariance(terms, sigma_sq), terms.min_eigenvalue, sigma_sq, converged, patches)
+    fit = _compare(terms, patches[:, 1:-1, 1:-1])
+    return Alignment(current, fit.ncc, fit.covariance, terms.min_eigenvalue, fit.sigma_sq, converged, patches)
 
 
 @dataclass(frozen=True)
@@ -445,7 +478,7 @@ def measure_differential(
     window: int = 11,
     max_level: int = 3,
     forward_backward_px: float = 1.0,
-    min_ncc: float = 0.6,
+    min_ncc: float = 0.8,
     anchor_ncc: float = 0.97,
     trust_ratio: float = 3.0,
     reacquire_ncc: float = 0.9,
@@ -480,7 +513,8 @@ def measure_differential(
     window : side of the flow's window (odd).
     max_level : deepest pyramid level the flow may use.
     forward_backward_px : largest distance between the flow back and the previous position.
-    min_ncc : the measured patch must match the anchor or the previous patch at least this well.
+    min_ncc : the anchor must match the patch at the measured position at least this well
+        (appearance check: an occluder, a jump to another point, a vanishing marker).
     anchor_ncc : at or above this NCC the anchor's alignment is the measurement.
     trust_ratio : the anchor's alignment is also the measurement when its residual
         variance is at most this times the chain's (it explains the patch nearly as well
@@ -581,15 +615,14 @@ def measure_differential(
         very_good = alignment.converged & (alignment.ncc >= anchor_ncc)
         # The chain, where the anchor alone does not settle it: the previous frame's patch
         # against the flow's match (the flow reports neither its residual nor its appearance).
-        chain_ncc = np.full(len(standing), np.nan)
         chain_variance = np.full(len(standing), np.nan)
         chain_cov = np.full((len(standing), 2, 2), np.nan)
         chain_eigenvalue = np.full(len(standing), np.nan)
         judged = flowed & ~very_good
         if judged.any():
             chain_terms = _template_terms(previous_patches[standing[judged]])
-            chain_ncc[judged], chain_variance[judged], _ = _compare(chain_terms, at_match[judged][:, 1:-1, 1:-1])
-            chain_cov[judged] = _covariance(chain_terms, chain_variance[judged])
+            chain = _compare(chain_terms, at_match[judged][:, 1:-1, 1:-1])
+            chain_variance[judged], chain_cov[judged] = chain.sigma_sq, chain.covariance
             chain_eigenvalue[judged] = chain_terms.min_eigenvalue
         # The anchor measures where it matches very well, or explains the patch nearly as well
         # as the previous frame does; a coasting track (no chain) only at reacquire_ncc.
@@ -603,8 +636,7 @@ def measure_differential(
         z[standing] = np.where(trusted[:, None], alignment.positions, z[standing])
         patches_out[standing] = np.where(trusted[:, None, None], alignment.patches, at_match)
         # Appearance: neither the anchor nor the previous frame's patch matches (an occluder, a jump).
-        best_ncc = np.fmax(alignment.ncc, chain_ncc)
-        rejection[standing[~(best_ncc >= min_ncc)]] = APPEARANCE
+        rejection[standing[~(alignment.ncc >= min_ncc)]] = APPEARANCE
         rejection[standing[~flowed & ~trusted]] = NOT_FOUND
         eigenvalue = np.where(trusted | ~flowed, alignment.min_eigenvalue, chain_eigenvalue)
         # (Near the border the padded window's gradients say nothing; OpenCV's own eigenvalue test applies there.)

@@ -534,7 +534,8 @@ class Tracker:
         )
         misses = np.where(good, 0, rows.misses + 1)
         # A candidate found on the last allowed frame gets one more frame to be confirmed.
-        lost = (misses > self.settings.max_misses) & ~(new_candidate & (misses == self.settings.max_misses + 1))
+        limit = self.settings.coast_limit
+        lost = (misses > limit) & ~(new_candidate & (misses == limit + 1))
         status = np.where(good, MEASURED, PREDICTED).astype(np.int8)
         status[lost] = LOST
         states = np.array(kf.x)
@@ -573,8 +574,10 @@ class Tracker:
         kf.update(z, R=0.5 * (noise + np.swapaxes(noise, 1, 2)))
         innovation_sq = np.sum((m.positions - predicted) ** 2, axis=1)
         # A keyframe: the anchor is renewed at the measurement after anchor_patience accepted
-        # frames in a row that it did not measure (its appearance has changed for good).
-        strikes = np.where(good & ~m.anchored, rows.strikes + 1, np.where(good, 0, rows.strikes))
+        # frames in a row that it did not measure, or matched below the re-acquisition level
+        # (its appearance has changed for good; it could no longer find the point again).
+        stale = ~m.anchored | ~(m.anchor_ncc >= self.settings.reacquire_ncc)
+        strikes = np.where(good & stale, rows.strikes + 1, np.where(good, 0, rows.strikes))
         renew = np.flatnonzero(good & (strikes >= self.settings.anchor_patience))
         anchors, anchor_cov = rows.anchors, rows.anchor_cov
         if len(renew):
