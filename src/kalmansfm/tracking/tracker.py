@@ -390,7 +390,7 @@ class Tracker:
         rows = replace(
             self._empty_rows(n), ids=ids, misses=(~found).astype(np.int64), anchors=anchors,
             templates=np.where(found[:, None, None], m.patches, templates), chain=second,
-            chain_cov=np.where(found[:, None, None], m.noise_covariances, 0.0),
+            chain_cov=np.where(found[:, None, None], m.carried_covariances, 0.0),
         )
         return self._add_to_filter(rows, first, second, found, 1.0 - m.anchor_ncc)
 
@@ -574,22 +574,21 @@ class Tracker:
         kf.update(z, R=0.5 * (noise + np.swapaxes(noise, 1, 2)))
         innovation_sq = np.sum((m.positions - predicted) ** 2, axis=1)
         # A keyframe: the anchor is renewed at the measurement after anchor_patience accepted
-        # frames in a row that it did not measure, or matched below the re-acquisition level
-        # (its appearance has changed for good; it could no longer find the point again).
-        stale = ~m.anchored | ~(m.anchor_ncc >= self.settings.reacquire_ncc)
-        strikes = np.where(good & stale, rows.strikes + 1, np.where(good, 0, rows.strikes))
-        renew = np.flatnonzero(good & (strikes >= self.settings.anchor_patience))
+        # frames in a row that it did not measure (its appearance has changed for good), and at
+        # once when it matches below the re-acquisition level (it could no longer find the point again).
+        strikes = np.where(good & ~m.anchored, rows.strikes + 1, np.where(good, 0, rows.strikes))
+        renew = np.flatnonzero(good & ((strikes >= self.settings.anchor_patience) | ~(m.anchor_ncc >= self.settings.reacquire_ncc)))
         anchors, anchor_cov = rows.anchors, rows.anchor_cov
         if len(renew):
             anchors = anchors.replace(renew, m.patches[renew])  # type: ignore[union-attr]
             anchor_cov = anchor_cov.copy()  # type: ignore[union-attr]
-            anchor_cov[renew] = m.noise_covariances[renew]
+            anchor_cov[renew] = m.carried_covariances[renew]
             strikes[renew] = 0
         rows = replace(
             rows, candidates=candidates, strikes=strikes, anchors=anchors, anchor_cov=anchor_cov,
             templates=np.where(good[:, None, None], m.patches, rows.templates),
             chain=np.where(good[:, None], m.positions, rows.chain),
-            chain_cov=np.where(good[:, None, None], m.noise_covariances, rows.chain_cov),
+            chain_cov=np.where(good[:, None, None], m.carried_covariances, rows.chain_cov),
         )
         return self._finish_step(rows, good, new_candidate, innovation_sq, 1.0 - m.anchor_ncc)
 
