@@ -39,6 +39,7 @@ Coordinates: x = column, y = row, pixel centres at integer coordinates.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 from functools import cached_property
 
@@ -195,6 +196,15 @@ class _TemplateTerms:
     inverse: np.ndarray
     well_posed: np.ndarray
     min_eigenvalue: np.ndarray
+    centre_energy: np.ndarray
+
+
+@functools.lru_cache(maxsize=8)
+def _centre_weights(n_pixels: int) -> np.ndarray:
+    """Flattened Gaussian of σ = ``_CENTRE_SIGMA_PX`` over a square patch of ``n_pixels`` pixels."""
+    side = int(round(np.sqrt(n_pixels)))
+    g = np.exp(-0.5 * ((np.arange(side) - side // 2) / _CENTRE_SIGMA_PX) ** 2).astype(np.float32)
+    return np.outer(g, g).ravel()
 
 
 def _template_terms(templates: np.ndarray) -> _TemplateTerms:
@@ -216,7 +226,8 @@ def _template_terms(templates: np.ndarray) -> _TemplateTerms:
     # Smallest eigenvalue of H, per pixel.
     min_eigenvalue = (0.5 * (hxx + hyy) - np.sqrt(0.25 * (hxx - hyy) ** 2 + hxy * hxy)) / m
     norm = np.sqrt(np.einsum("ni,ni->n", inner, inner).astype(np.float64))
-    return _TemplateTerms(inner, gradients, norm, inverse, well_posed, min_eigenvalue)
+    centre_energy = np.einsum("ni,ni->n", inner * _centre_weights(m), inner).astype(np.float64)
+    return _TemplateTerms(inner, gradients, norm, inverse, well_posed, min_eigenvalue, centre_energy)
 
 
 @dataclass(frozen=True)
@@ -233,7 +244,7 @@ def _compare(terms: _TemplateTerms, patches: np.ndarray) -> _Fit:
     The residual is r = T̃ - g Ĩ with the gain g = ‖T̃‖ / ‖Ĩ‖ (T̃, Ĩ minus their means).
     Pixels that do not move with the point (background behind a corner, the edge of an
     occluder) are down-weighted by Tukey's biweight (1 - (r / c)²)², c = 4.685 s, with
-    s = 1.4826 median|r| (at least the rounding noise), times a Gaussian of σ = 3 px around
+    s = 1.2533 mean|r| (σ of a Gaussian residual; at least the rounding noise), times a Gaussian of σ = 3 px around
     the centre; with these weights w the step is (Σ w ∇T ∇Tᵀ)⁻¹ Σ w ∇T r,
     σ² = Σ w r² / (Σ w - 4) (translation, gain and offset fitted), at least the rounding
     noise of two 8-bit patches, and the covariance σ² (Σ w ∇T ∇Tᵀ)⁻¹ (NaN where singular).
@@ -245,17 +256,16 @@ def _compare(terms: _TemplateTerms, patches: np.ndarray) -> _Fit:
     p_norm = np.sqrt(np.einsum("ni,ni->n", patch, patch).astype(np.float64))
     gain = np.where(p_norm > 1e-9, terms.norm / np.maximum(p_norm, 1e-9), 1.0)
     residual = terms.inner - gain.astype(np.float32)[:, None] * patch
-    scale = np.maximum(1.4826 * np.median(np.abs(residual), axis=1), np.float32(np.sqrt(_QUANTIZATION_VARIANCE)))
+    scale = np.maximum(np.float32(1.2533) * np.abs(residual).mean(axis=1), np.float32(np.sqrt(_QUANTIZATION_VARIANCE)))
     u = residual / (np.float32(4.685) * scale[:, None])
-    weights = np.where(np.abs(u) < 1, (1 - u * u) ** 2, np.float32(0.0))
-    side = int(round(np.sqrt(patch.shape[1])))
-    g = np.exp(-0.5 * ((np.arange(side) - side // 2) / _CENTRE_SIGMA_PX) ** 2).astype(np.float32)
-    centre = np.outer(g, g).ravel()
-    weights = weights * centre[None, :]
+    u *= u
+    weights = np.where(u < 1, (1 - u) ** 2, np.float32(0.0))
+    centre = _centre_weights(patch.shape[1])
+    weights *= centre
     # NCC with the same weight on the centre (the point's own appearance, less its surroundings).
-    t_c, p_c = terms.inner * centre, patch * centre
-    ncc = np.einsum("ni,ni->n", t_c, patch).astype(np.float64) / np.sqrt(
-        np.maximum(np.einsum("ni,ni->n", t_c, terms.inner).astype(np.float64) * np.einsum("ni,ni->n", p_c, patch), 1e-12)
+    p_c = patch * centre
+    ncc = np.einsum("ni,ni->n", terms.inner, p_c).astype(np.float64) / np.sqrt(
+        np.maximum(terms.centre_energy * np.einsum("ni,ni->n", p_c, patch), 1e-12)
     )
     weighted = weights * residual
     sigma_sq = np.einsum("ni,ni->n", weighted, residual).astype(np.float64) / np.maximum(weights.sum(axis=1).astype(np.float64) - 4.0, 1.0)
