@@ -628,7 +628,8 @@ def measure_differential(
     if len(standing):
         flowed = followed[standing]
         at_match = current.patches(z[standing], w)
-        alignment = align_templates(current, anchors.take(standing), z[standing], iterations, anchor_agreement_px, at_match)
+        bank = anchors if len(standing) == k else anchors.take(standing)
+        alignment = align_templates(current, bank, z[standing], iterations, anchor_agreement_px, at_match)
         ncc[standing] = alignment.ncc
         very_good = alignment.converged & (alignment.ncc >= anchor_ncc)
         # The chain, where the anchor alone does not settle it: the previous frame's patch
