@@ -147,3 +147,18 @@ def test_frames_of_different_sizes_and_misshaped_inputs_are_refused():
         measure(previous, small, patches, anchors, GRID)
     with pytest.raises(InvalidInputError, match="one row per track"):
         measure_differential(previous, current, GRID, patches[:3], GRID, np.zeros((len(GRID), 2, 2)), anchors)
+
+
+def test_settings_check_the_differential_options():
+    from kalmansfm.tracking import TrackerSettings
+
+    assert TrackerSettings().matcher == "differential" and TrackerSettings().coast_limit == 5
+    assert TrackerSettings(matcher="search").coast_limit == 3 and TrackerSettings(max_misses=1).coast_limit == 1
+    with pytest.raises(InvalidInputError, match="matcher must be one of"):
+        TrackerSettings(matcher="nearest")
+    with pytest.raises(InvalidInputError, match="min_ncc must be a correlation in"):
+        TrackerSettings(min_ncc=1.5)
+    with pytest.raises(InvalidInputError, match="forward_backward_px must be a positive number"):
+        TrackerSettings(forward_backward_px=0.0)
+    with pytest.raises(InvalidInputError, match="max_pyramid_level must be"):
+        TrackerSettings(max_pyramid_level=-1)
