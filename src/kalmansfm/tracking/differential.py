@@ -1,38 +1,38 @@
 """Differential measurement: Lucas–Kanade started from the Kalman prediction, checked, with its own noise.
 
 One call of :func:`measure_differential` measures every track in the current
-frame at once:
+frame at once (``docs/tracking.md`` has the measurements behind each choice):
 
 1. **Flow from the prediction.**  OpenCV's pyramidal Lucas–Kanade
    (``calcOpticalFlowPyrLK`` with ``OPTFLOW_USE_INITIAL_FLOW``) follows each
    track from its previous position, starting at the predicted position p⁻.
-   The pyramid depth is chosen per track from the predicted position covariance
-   Σ⁻: the gate reaches c·√λmax(Σ⁻) from p⁻, and a level-L pyramid captures about
-   ``capture_px``·2^L pixels (measured, see ``docs/tracking.md``), so a confident
-   prediction runs on fewer levels.  Tracks are grouped by depth, one OpenCV call
-   per group.
+   The pyramid depth is per track: the gate reaches c·√λmax(Σ⁻) from p⁻ (less
+   where the track's plausible radius is smaller), and L levels capture about
+   ``capture_px``·2^L pixels (measured), so a confident track runs on fewer
+   levels.  Tracks are grouped by depth, one OpenCV call per group.
 2. **Forward–backward check.**  The same flow run from the current frame back to
    the previous one, started at the match minus the predicted motion, must land
    within ``forward_backward_px`` of where the track was.
-3. **Gate.**  The match must lie in the gate (z - p⁻)ᵀ (Σ⁻)⁻¹ (z - p⁻) ≤ c².
-4. **Anchor and appearance.**  Each track carries an *anchor*: a template cut at
-   its first appearance (or at a later keyframe chosen by the caller).  The anchor
-   is aligned to the frame from the match by Gauss–Newton with gain and offset
-   (:func:`align_templates`).  Where the anchor matches well (NCC ≥ ``anchor_ncc``)
-   its position is the measurement, so the track does not drift with the
-   frame-to-frame chaining; where it matches only acceptably the flow's match is
-   kept; below ``min_ncc`` the measurement is refused.
-5. **Noise from the refinement.**  The measurement noise of an anchored match is
-   R = σ² (Σ ∇T ∇Tᵀ)⁻¹ — the residual variance of the alignment times the inverse
-   of the anchor's structure tensor — plus the anchor's own covariance (zero for a
-   first appearance, the track's covariance when a keyframe was cut).  A chained
-   match inherits the previous position's covariance instead, because its error
-   is that of the previous position plus the flow's.
+3. **Anchor.**  Each track carries an *anchor*: a template cut at its first
+   appearance (or at a later keyframe chosen by the caller).  It is aligned to
+   the frame from the flow's match by a robust, centre-weighted Gauss–Newton step
+   with gain and offset (:func:`align_templates`).  Where it agrees with the match
+   and either matches very well (NCC ≥ ``anchor_ncc``) or explains the patch
+   nearly as well as the previous frame does (``trust_ratio``), its position is the
+   measurement, so the track does not drift with the frame-to-frame chain.
+4. **Appearance.**  The anchor's centre-weighted NCC at the measurement must be at
+   least ``min_ncc``.
+5. **Gate and plausibility.**  (z - p⁻)ᵀ (Σ⁻)⁻¹ (z - p⁻) ≤ c², ‖z - p⁻‖ at most the
+   track's plausible radius, and the point's core inside the image.
+6. **Noise from the refinement.**  R = σ² (Σ w ∇T ∇Tᵀ)⁻¹ of the refinement that
+   measured, plus what it inherits (the anchor's covariance when it was cut at a
+   keyframe; the previous measurement's for a chained match, whose error is the
+   previous one's plus the flow's), plus a floor of (0.15 px)² per axis.
 
 Coasting tracks (no measured position in the previous frame) are not followed by
-flow, which would follow whatever hid them: their anchor is searched in the gate
-with normalised cross-correlation (:func:`~kalmansfm.tracking.matching.match_templates`),
-then aligned and checked like the others.
+flow, which would follow whatever hid them: their anchor is searched by SSD in the
+gate (:func:`~kalmansfm.tracking.matching.match_templates`), then aligned and taken
+only at NCC ≥ ``reacquire_ncc``.
 
 Coordinates: x = column, y = row, pixel centres at integer coordinates.
 """
@@ -148,15 +148,18 @@ class DifferentialFrame:
         return sample_patches(self._padded, centers, self.window if size is None else size, np.float32)
 
 
-def prepare_differential_frame(frame: np.ndarray, window: int, search_radius: int = 40) -> DifferentialFrame:
+def prepare_differential_frame(frame: np.ndarray, window: int, search_radius: int = 40, grey_scale: float = 1.0) -> DifferentialFrame:
     """Make a grey frame ready for :func:`measure_differential` (once per frame).
 
     Parameters
     ----------
-    frame : (H, W) grey image; uint8 is used as is, other types are rounded and
-        clipped to 0…255 for the flow (the anchors see the original values).
+    frame : (H, W) grey image; uint8 is used as is, other types are multiplied by
+        ``grey_scale`` (the anchors see that) and rounded and clipped to 0…255 for the flow.
     window : side of the anchor templates (odd).
     search_radius : largest half-size of an anchor search box.
+    grey_scale : factor that brings the frame's grey levels to 0…255 (the same for every
+        frame of a sequence, e.g. 255 / 65535 for 16-bit frames): the thresholds on residuals
+        and gradients are in 8-bit grey levels.
 
     Examples
     --------
@@ -165,7 +168,12 @@ def prepare_differential_frame(frame: np.ndarray, window: int, search_radius: in
     ('uint8', 7, (20, 30), (1, 3, 3))
     """
     image = np.ascontiguousarray(frame, dtype=np.float32)
-    grey = frame if frame.dtype == np.uint8 else np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    if frame.dtype == np.uint8:
+        grey = frame
+    else:
+        if grey_scale != 1.0:
+            image = image * np.float32(grey_scale)
+        grey = np.clip(np.rint(image), 0, 255).astype(np.uint8)
     return DifferentialFrame(np.ascontiguousarray(grey), image, int(window), int(search_radius))
 
 

@@ -226,8 +226,10 @@ class Tracker:
         # Tracks in the filter, and their rows of per-track state.
         self._kf: KalmanFilter | None = None
         self._rows = self._empty_rows()
-        # The previous frame (the differential matcher's flow starts there).
+        # The previous frame (the differential matcher's flow starts there), and the factor
+        # that brings the frames' grey levels to 0…255 for the flow.
         self._previous: DifferentialFrame | None = None
+        self._grey_scale: float | None = None
         # Tracks started in the previous frame and waiting for their second frame.
         self._pending_ids = np.zeros(0, np.int64)
         self._pending_positions = np.zeros((0, 2))
@@ -308,7 +310,12 @@ class Tracker:
 
     def _prepare(self, image: np.ndarray) -> PreparedFrame | DifferentialFrame:
         if self._differential:
-            return prepare_differential_frame(image, self.window, self.settings.max_search_radius)
+            if self._grey_scale is None:
+                # The flow reads 8-bit images: frames in another range (16-bit, 0…1 floats) are
+                # scaled once, by the first frame's brightest pixel, the same for the whole sequence.
+                brightest = float(image.max()) if image.size else 0.0
+                self._grey_scale = 255.0 / brightest if brightest > 255.0 or 0.0 < brightest <= 1.0 else 1.0
+            return prepare_differential_frame(image, self.window, self.settings.max_search_radius, self._grey_scale)
         return prepare_frame(image, self.window, self.settings.max_search_radius)
 
     def _start_pending(self, frame: PreparedFrame | DifferentialFrame, points: np.ndarray, ids: np.ndarray) -> None:

@@ -162,3 +162,17 @@ def test_settings_check_the_differential_options():
         TrackerSettings(forward_backward_px=0.0)
     with pytest.raises(InvalidInputError, match="max_pyramid_level must be"):
         TrackerSettings(max_pyramid_level=-1)
+
+
+@pytest.mark.parametrize("scale", [1.0 / 255.0, 257.0])
+def test_frames_in_another_grey_range_are_tracked_as_well(scale):
+    """0…1 floats and 16-bit frames: the flow sees them scaled to 8 bits once, by the first frame."""
+    from kalmansfm.tracking import track
+
+    base = texture(5)
+    frames = [np.clip(shifted(base, 1.2 * k, -0.6 * k), 0, 255) for k in range(6)]
+    start = GRID[:10]
+    reference = track([np.rint(f).astype(np.uint8) for f in frames], start)
+    other = track([f * scale if scale < 1 else (f * scale).astype(np.uint16) for f in frames], start)
+    assert (other.status == 1).all()
+    np.testing.assert_allclose(other.positions, reference.positions, atol=0.05)
