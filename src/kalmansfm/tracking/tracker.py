@@ -1,7 +1,17 @@
-"""The Kalman-gated template tracker: predict, search the gate, update — for all tracks at once.
+"""The Kalman tracker: predict, measure, update — for all tracks at once.
 
-Per frame, with one batched :class:`~kalmansfm.estimation.KalmanFilter` holding every
-live track:
+Two matchers measure the tracks (``TrackerSettings.matcher``; ``docs/tracking.md``):
+
+- ``"differential"`` (default): Lucas–Kanade started from each track's prediction,
+  checked by the gate, a forward–backward flow and its anchor's appearance, anchored to
+  its first appearance or a keyframe, with a measurement noise R from the refinement
+  itself (:mod:`kalmansfm.tracking.differential`; :meth:`Tracker._step_differential`).
+  A coasting track is searched with its anchor and, as below, re-acquired only when a
+  second frame confirms the candidate.
+- ``"search"``: the report's gated exhaustive template search, described below.
+
+Per frame of the search, with one batched :class:`~kalmansfm.estimation.KalmanFilter`
+holding every live track:
 
 1. predict s⁻ = Φ s, Σ⁻ = Φ Σ Φᵀ + Q;
 2. search each track's template inside its gate ellipse
@@ -170,7 +180,7 @@ def _as_grey(frame: object, index: int) -> np.ndarray:
 
 
 class Tracker:
-    """Streaming Kalman-gated template tracker: feed one frame at a time.
+    """Streaming Kalman tracker (differential or search matcher): feed one frame at a time.
 
     Parameters
     ----------
