@@ -95,6 +95,31 @@ CASES = [
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations 0", "--max-iterations must be >= 1"),
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations -5", "--max-iterations must be >= 1"),
     ("reconstruct", "{d}/tracks_ok.csv --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective", "needs its intrinsics"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --focal 500", "--focal needs the image size"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --intrinsics {d}/K_singular.csv",
+     "K_singular.csv: line 2: fx and fy must be > 0"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --intrinsics {d}/K_two_frames.csv",
+     "K_two_frames.csv: no intrinsics for frame 2"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --focal 500 --image-size 100 100",
+     "no two frames share >= 24 tracks"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --focal 500", "describe a perspective camera"),
+    ("demo", "--out {out} --camera perspective --focal 500", "needs your own sequence"),
+    # --- fuse --------------------------------------------------------------------------------
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_no_p34.csv --out {out}", "cams_no_p34.csv: header lacks column(s) p34"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_singular.csv --out {out}", "cams_singular.csv: line 3: frame 1: not a camera"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_nan.csv --out {out}", "cams_nan.csv: line 2: p11 must be finite"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_twice.csv --out {out}", "cams_twice.csv: lines 2 and 3: frame 0 has two cameras"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_not_rotation.csv --out {out}", "cams_not_rotation.csv: line 2: r11..r33 is not a rotation"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_one.csv --out {out}", "tracks_ok.csv: 1 of its 4 frame(s) have a camera"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/missing.csv --out {out}", "missing.csv: no such file"),
+    ("fuse", "{d}/tracks_no_y.csv --cameras {d}/cams_ok.csv --out {out}", "tracks_no_y.csv: line 1: header lacks column(s) y"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --pixel-std -1", "pixel_std must be finite and > 0"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --pixel-std some", "argument --pixel-std"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --outlier-prob 2", "outlier_probability must be in (0, 1]"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --method ekf", "argument --method: invalid choice"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --workers 0", "workers must be an integer >= 1"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
     # --- report (its output folder is the run folder itself) ----------------------------------
     ("report", "{d}/missing", "missing does not exist or is not a folder"),
     ("report", "{d}/empty", "empty/summary.json: not found"),
@@ -187,12 +212,24 @@ def bad_inputs(tmp_path_factory) -> Path:
     rng = np.random.default_rng(0)
     ok_rows = [f"{f},{p},{x:.3f},{y:.3f}" for f in range(4) for p in range(6) for x, y in [rng.uniform(0, 100, 2)]]
     (d / "tracks_ok.csv").write_text("frame,track_id,x,y\n" + "\n".join(ok_rows) + "\n")
+    (d / "K_singular.csv").write_text("frame,fx,fy,cx,cy,skew\n0,500,0,50,50,0\n")
+    (d / "K_two_frames.csv").write_text("frame,fx,fy,cx,cy,skew\n0,500,500,50,50,0\n1,500,500,50,50,0\n")
     (d / "tracks_no_y.csv").write_text("frame,track_id,x\n0,1,2\n")
     (d / "tracks_nan.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,2,nan\n")
     (d / "tracks_inf.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,inf,3\n")
     (d / "tracks_words.csv").write_text("frame,track_id,x,y\nfirst,1,2,3\n")
     (d / "tracks_ragged.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,2\n")
     (d / "too_few.csv").write_text("frame,track_id,x,y\n0,1,2,3\n1,1,2,3\n")
+    p_header = "frame," + ",".join(f"p{i}{j}" for i in range(1, 4) for j in range(1, 5))
+    p_rows = [f"{f},500,0,320,{-100 * f},0,500,240,0,0,0,1,10" for f in range(4)]
+    (d / "cams_ok.csv").write_text(p_header + "\n" + "\n".join(p_rows) + "\n")
+    (d / "cams_no_p34.csv").write_text(p_header.rsplit(",", 1)[0] + "\n0" + ",1" * 11 + "\n")
+    (d / "cams_singular.csv").write_text(p_header + "\n" + p_rows[0] + "\n1,1,2,3,0,2,4,6,0,0,0,1,0\n")
+    (d / "cams_nan.csv").write_text(p_header + "\n0,nan" + ",1" * 11 + "\n")
+    (d / "cams_twice.csv").write_text(p_header + "\n" + p_rows[0] + "\n" + p_rows[0] + "\n")
+    (d / "cams_one.csv").write_text(p_header + "\n" + p_rows[0] + "\n")
+    k_header = "frame,fx,fy,cx,cy,skew," + ",".join(f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)) + ",t1,t2,t3"
+    (d / "cams_not_rotation.csv").write_text(k_header + "\n0,500,500,320,240,0,1,0,0,0,2,0,0,0,1,0,0,5\n")
     (d / "binary.csv").write_bytes(bytes(range(256)))
     np.savez(d / "positions_3.npz", positions=np.zeros((4, 5, 3)), status=np.ones((4, 5), np.int8), track_ids=np.arange(5))
     np.savez(d / "status_shape.npz", positions=np.zeros((4, 5, 2)), status=np.ones((4, 4), np.int8), track_ids=np.arange(5))

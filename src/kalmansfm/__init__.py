@@ -2,8 +2,9 @@
 
 The public API is what ``__all__`` lists; everything else is internal.
 Data flows one way: frames → :func:`track` → :func:`factorize` → report
-(:func:`run_demo` does all of it); :func:`fuse_recursive` and
-:func:`estimate_landmarks` fuse 3D structure under known motion.
+(:func:`run_demo` does all of it); :func:`fuse` fuses each tracked point over views of
+known cameras (:class:`CameraSet`) into a 3D point with a covariance; :func:`fuse_recursive`
+and :func:`estimate_landmarks` fuse 3D structure under known motion.
 The layers and what each may import: docs/architecture.md.
 """
 
@@ -20,20 +21,31 @@ from .estimation import (
     fuse_recursive,
     smooth,
 )
-from .pipeline import DemoRun, run_demo
+from .pipeline import DemoRun, FuseRun, run_demo, run_fuse
 from .structure import (
+    CameraSet,
+    FusedStructure,
+    FusionSettings,
     LandmarkEstimates,
+    PerspectiveReconstruction,
+    PerspectiveSettings,
     Reconstruction,
     TriangulationResult,
     align_similarity,
     estimate_landmarks,
     factorize,
+    fuse,
+    reconstruct_perspective,
     triangulate_midpoint,
 )
 from .tracking import Tracker, TrackerSettings, Tracks, TrackStatus, track
 
 __all__ = [
+    "CameraSet",
     "DemoRun",
+    "FuseRun",
+    "FusedStructure",
+    "FusionSettings",
     "FilterRun",
     "FusionResult",
     "InvalidInputError",
@@ -43,6 +55,8 @@ __all__ = [
     "LandmarkEstimates",
     "LinearGaussianModel",
     "NotEnoughDataError",
+    "PerspectiveReconstruction",
+    "PerspectiveSettings",
     "Reconstruction",
     "SingularCovarianceError",
     "SmoothedRun",
@@ -56,9 +70,12 @@ __all__ = [
     "constant_velocity_2d",
     "estimate_landmarks",
     "factorize",
+    "fuse",
     "fuse_closed_form",
     "fuse_recursive",
+    "reconstruct_perspective",
     "run_demo",
+    "run_fuse",
     "smooth",
     "track",
     "triangulate_midpoint",

@@ -9,11 +9,12 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InvalidInputError
-from ..experiments.consistency import ConsistencyResult, run_consistency
+from ..experiments.consistency import SPACES, ConsistencyResult, run_consistency
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..structure.landmark import METHODS
 
 _AXES = {1: ["distance"], 3: ["x", "y", "z"]}
+_STATE_AXES = ["x/z", "y/z", "1/z"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -34,13 +35,24 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument(
         "--pixel-noise", type=float, default=DEFAULT_PIXEL_NOISE_STD, help="Task 7 image noise std, pixels"
     )
+    p.add_argument(
+        "--space", choices=[x.replace("_", "-") for x in SPACES], default="point",
+        help="Task 7: judge the point (x, y, z) in the current camera frame, or (--method recursive) the "
+        "filter's own state, the inverse depth in the first camera frame",
+    )
     p.add_argument("--format", choices=["text", "csv"], default="text", help="summary text or per-iteration CSV")
     p.set_defaults(run=run)
 
 
+def _axes(r: ConsistencyResult) -> list[str]:
+    if r.parameters.get("space") == "inverse_depth":
+        return _STATE_AXES
+    return _AXES.get(r.dimension, [str(i + 1) for i in range(r.dimension)])
+
+
 def format_text(r: ConsistencyResult) -> str:
     """A short human-readable summary."""
-    axes = _AXES.get(r.dimension, [str(i + 1) for i in range(r.dimension)])
+    axes = _axes(r)
     params = ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in r.parameters.items())
     lines = [
         f"Task {r.task}, method {r.method}: {r.runs} runs, {r.iterations} iterations, d = {r.dimension} ({params})",
@@ -62,7 +74,7 @@ def format_text(r: ConsistencyResult) -> str:
 
 def format_csv(r: ConsistencyResult) -> str:
     """One row per iteration: NEES, its interval and the per-axis 1σ/3σ fractions."""
-    axes = _AXES.get(r.dimension, [str(i + 1) for i in range(r.dimension)])
+    axes = [a.replace("/", "_over_") for a in _axes(r)]
     header = ["iter", "valid_runs", "mean_nees", "nees_low", "nees_high", "inside"]
     header += [f"within1_{a}" for a in axes] + [f"within3_{a}" for a in axes]
     rows = [",".join(header)]
@@ -78,9 +90,12 @@ def format_csv(r: ConsistencyResult) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.task == 2 and args.method is not None:
         raise InvalidInputError("--method applies to --task 7 only (task 2 is plain Kalman fusion)")
+    if args.task == 2 and args.space != "point":
+        raise InvalidInputError("--space applies to --task 7 only")
     with tqdm(total=args.runs, desc=f"task {args.task} runs", unit="run", disable=args.quiet, file=sys.stderr) as bar:
         result = run_consistency(
-            args.task, args.method, args.runs, args.seed, args.focal, args.pixel_noise, progress=bar.update
+            args.task, args.method, args.runs, args.seed, args.focal, args.pixel_noise, progress=bar.update,
+            space=args.space.replace("-", "_"),
         )
     sys.stdout.write(format_text(result) if args.format == "text" else format_csv(result))
     return 0

@@ -34,6 +34,11 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         default=True,
         help="RTS-smooth the tracks (each estimate given the whole sequence) before writing and factorizing them",
     )
+    p.add_argument("--camera", choices=("affine", "perspective"), default="affine",
+                   help="affine: factorization; perspective: calibrated reconstruction of your --input with --focal "
+                   "(bundle adjustment, covariances in the free-network gauge)")
+    p.add_argument("--focal", metavar="F", type=float, default=None,
+                   help="--camera perspective: focal length in pixels (principal point at the image centre)")
     p.add_argument("--open", action="store_true", help="open report.html in a browser when done")
     p.set_defaults(run=run)
 
@@ -41,7 +46,8 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and print a short summary."""
     result = run_demo(
-        args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet
+        args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet,
+        camera=args.camera, focal=args.focal,
     )
     print(describe(result))
     if args.open and result.report is not None:

@@ -21,7 +21,7 @@ from .._version import __version__
 from ..errors import KalmanSfmError, ReportInterrupted
 
 # Order shown in --help.
-SUBCOMMANDS = ["demo", "track", "reconstruct", "report", "batch", "tables", "consistency", "scene"]
+SUBCOMMANDS = ["demo", "track", "reconstruct", "fuse", "report", "batch", "tables", "consistency", "scene"]
 
 log = logging.getLogger("kalmansfm")
 

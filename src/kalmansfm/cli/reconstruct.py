@@ -1,4 +1,5 @@
-"""``kalmansfm reconstruct TRACKS --out DIR``: shape and motion from tracks by factorization."""
+"""``kalmansfm reconstruct TRACKS --out DIR``: shape and motion from tracks (factorization, or calibrated
+reconstruction with ``--camera perspective``)."""
 
 from __future__ import annotations
 
@@ -9,21 +10,42 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..pipeline import run_reconstruct
+from ..pipeline.perspective import CAMERA_MODELS
+from ..structure.perspective import PERSPECTIVE_METHODS, PerspectiveSettings
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "reconstruct",
         parents=parents,
-        help="3D shape and camera motion from point tracks (Tomasi-Kanade factorization)",
-        description="Recover the 3D shape and the camera motion from point tracks by orthographic "
-        "factorization with a metric upgrade. TRACKS is the tracker's tracks.csv or tracks.npz, or a CSV "
-        "with columns frame,track_id,x,y. Writes structure.csv, structure.ply, motion.csv, structure.png "
-        "and summary.json to DIR and prints the singular values, the rank-3 residual and any warnings.",
+        help="3D shape and camera motion from point tracks (factorization, or calibrated perspective reconstruction)",
+        description="Recover the 3D shape and the camera motion from point tracks. TRACKS is the tracker's "
+        "tracks.csv or tracks.npz, or a CSV with columns frame,track_id,x,y. --camera affine (default): "
+        "orthographic factorization with a metric upgrade; writes structure.csv, structure.ply, motion.csv, "
+        "structure.png and summary.json. --camera perspective: calibrated reconstruction (needs --intrinsics "
+        "K.csv with frame,fx,fy,cx,cy,skew, or --focal F): initial pair, PnP growth, bundle adjustment, "
+        "per-point covariances in the free-network gauge; writes structure.csv (with covariances and status), "
+        "cameras.csv, structure.ply, reconstruction.png and summary.json. --camera auto runs both and keeps "
+        "the perspective model when its reprojection RMS is at most the affine model's.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("tracks", metavar="TRACKS", type=Path, help="tracks.csv, tracks.npz or a frame,track_id,x,y CSV")
     p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output folder")
+    defaults = PerspectiveSettings()
+    p.add_argument("--camera", choices=CAMERA_MODELS, default="affine", help="camera model")
+    p.add_argument("--intrinsics", metavar="K.csv", type=Path, default=None,
+                   help="perspective/auto: the intrinsics, frame,fx,fy,cx,cy,skew (one row for all frames or one per frame)")
+    p.add_argument("--focal", metavar="F", type=float, default=None,
+                   help="perspective/auto: focal length in pixels instead of --intrinsics (principal point at the "
+                   "image centre)")
+    p.add_argument("--image-size", metavar=("W", "H"), type=int, nargs=2, default=None,
+                   help="image width and height for --focal when the tracks file does not record them")
+    p.add_argument("--method", choices=PERSPECTIVE_METHODS, default=defaults.method,
+                   help="perspective: bundle adjustment (batch) or the report's relative orientations and recursive "
+                   "fusion (recursive)")
+    p.add_argument("--outlier-threshold", metavar="PX", type=float, default=defaults.outlier_threshold_px,
+                   help="perspective: an observation farther than this from where its other views put the point is "
+                   "an outlier (unless the estimated noise makes the chi-square bound wider)")
     p.add_argument(
         "--no-weights",
         action="store_true",
@@ -44,10 +66,19 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 def run(args: argparse.Namespace) -> int:
     if args.max_iterations < 1:
         raise InvalidInputError(f"--max-iterations must be >= 1; got {args.max_iterations}")
-    result = run_reconstruct(args.tracks, args.out, weighted=not args.no_weights, smooth=args.smooth,
+    if args.camera == "affine" and (args.intrinsics is not None or args.focal is not None):
+        raise InvalidInputError("--intrinsics and --focal describe a perspective camera: add --camera perspective "
+                                "(or auto)")
+    settings = PerspectiveSettings(method=args.method, outlier_threshold_px=args.outlier_threshold)
+    result = run_reconstruct(args.tracks, args.out, camera=args.camera, intrinsics=args.intrinsics,
+                             focal=args.focal, image_size=None if args.image_size is None else tuple(args.image_size),
+                             perspective=settings, weighted=not args.no_weights, smooth=args.smooth,
                              max_iterations=args.max_iterations, plot=not args.no_plot)
+    if result.summary.perspective is not None:
+        _print_perspective(result)
+        return 0
     s, r = result.summary.structure, result.reconstruction
-    assert s is not None  # run_reconstruct always records its structure
+    assert s is not None and r is not None  # an affine run records its structure
     shown = np.array2string(r.singular_values[:6], precision=4, separator=", ")
     print(f"frames: {s.frames}  tracks: {s.points}  method: {s.method}"
           + (f" ({s.iterations} iterations)" if s.method == "als" else "")
@@ -55,7 +86,21 @@ def run(args: argparse.Namespace) -> int:
           + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")
     print(f"rank-3 residual: {s.residual_rms_px:.4f} px RMS")
-    for note in s.warnings:
+    for note in (*s.warnings, *result.summary.warnings):
         print(f"warning: {note}")
     print(f"wrote {args.out}")
     return 0
+
+
+def _print_perspective(result) -> None:
+    p = result.summary.perspective
+    print(f"frames: {p.frames}  registered: {p.registered_frames}  tracks: {p.points}  reconstructed: "
+          f"{p.reconstructed}  method: {p.method}")
+    if p.camera_choice:
+        print(f"camera: {p.camera_choice}")
+    print(f"intrinsics: {p.intrinsics}")
+    print(f"inliers: {p.inliers} of {p.observations} observations; pixel noise sigma {p.pixel_std_px:.3g} px; "
+          f"reprojection RMS {p.reprojection_rms_px:.3g} px")
+    for note in result.summary.warnings:
+        print(f"warning: {note}")
+    print(f"wrote {result.out_dir}")

@@ -43,8 +43,9 @@ def add_task7_options(parser: argparse.ArgumentParser) -> None:
         "--method",
         choices=METHODS,
         default="pairs",
-        help="pairs: the report's Kalman fusion of consecutive-pair triangulations; "
-        "batch: Gauss-Newton maximum likelihood on all images so far (consistent)",
+        help="pairs: the report's Kalman fusion of consecutive-pair triangulations (over-confident); "
+        "recursive: Kalman fusion of the images, inverse depth, iterated EKF (consistent); "
+        "batch: Gauss-Newton maximum likelihood on all images so far",
     )
     group.add_argument("--seed", type=int, default=0, help="seed of the simulated image noise")
     group.add_argument("--focal", type=float, default=DEFAULT_FOCAL, help="focal length, pixels")

@@ -49,6 +49,9 @@ __all__ = [
 ]
 
 Progress = Callable[[int], None]
+#: What Task 7's consistency judges: the point (x, y, z) in the current camera frame, or the
+#: recursive filter's state (inverse depth in the first camera frame).
+SPACES = ("point", "inverse_depth")
 _CHUNK = 100  # runs simulated together (vectorised), between progress reports
 
 
@@ -257,12 +260,16 @@ def task7_consistency(
     focal: float = DEFAULT_FOCAL,
     pixel_noise_std: float = DEFAULT_PIXEL_NOISE_STD,
     progress: Progress | None = None,
+    space: str = "point",
 ) -> ConsistencyResult:
     """Task 7: the report's landmark from a moving camera, N independent noise draws.
 
     Iterations 1..24 are the estimates after images 1..24.  A run whose estimate
     is flagged (not converged, no estimate) is left out of that iteration and
-    counted in ``valid_runs``.
+    counted in ``valid_runs``.  ``space="inverse_depth"`` (method ``recursive``)
+    judges the filter's own state, (x/z, y/z, 1/z) of the landmark in the first
+    camera frame, which exists in every run from the first pair on, also while the
+    depth is not determined and the point has no finite (x, y, z).
 
     Examples
     --------
@@ -272,6 +279,10 @@ def task7_consistency(
     """
     if method not in METHODS:
         raise InvalidInputError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    if space not in SPACES:
+        raise InvalidInputError(f"space must be one of {', '.join(SPACES)}; got {space!r}")
+    if space == "inverse_depth" and method != "recursive":
+        raise InvalidInputError(f"space 'inverse_depth' is the recursive filter's state; method is {method!r}")
     runs, seed = _check_runs_seed(runs, seed)
     f = check_focal(focal)
     sigma = check_pixel_noise(pixel_noise_std)
@@ -281,15 +292,23 @@ def task7_consistency(
     for n in _chunks(runs):
         truth, obs = simulate_observations(n, rng, f, sigma)
         est = estimate_landmarks(obs, path.rotations, path.translations, f, sigma, method=method)
-        errors.append(est.estimates[1:] - truth[1:, None, :])
-        covs.append(est.covariances[1:])
-        valid.append(est.converged[1:])
+        if space == "point":
+            errors.append(est.estimates[1:] - truth[1:, None, :])
+            covs.append(est.covariances[1:])
+            valid.append(est.converged[1:])
+        else:
+            # every run starts at images (0, 1): the state is the landmark's inverse depth in frame 0
+            x, y, z = truth[0]
+            errors.append(est.inverse_depth[1:] - np.array([x / z, y / z, 1.0 / z]))
+            covs.append(est.inverse_depth_covariances[1:])
+            valid.append(np.isfinite(est.inverse_depth[1:]).all(axis=2))
         if progress is not None:
             progress(n)
     return consistency_from_errors(
         np.concatenate(errors, axis=1), np.concatenate(covs, axis=1), np.concatenate(valid, axis=1),
         task=7, method=method,
-        parameters={"seed": seed, "focal": f, "pixel_noise_std": sigma, "noise_over_focal": sigma / f},
+        parameters={"seed": seed, "focal": f, "pixel_noise_std": sigma, "noise_over_focal": sigma / f,
+                    "space": space},
     )
 
 
@@ -301,12 +320,15 @@ def run_consistency(
     focal: float = DEFAULT_FOCAL,
     pixel_noise_std: float = DEFAULT_PIXEL_NOISE_STD,
     progress: Progress | None = None,
+    space: str = "point",
 ) -> ConsistencyResult:
     """Dispatch to :func:`task2_consistency` or :func:`task7_consistency` (default method ``pairs``)."""
     if task == 2:
         if method not in (None, "kalman"):
             raise InvalidInputError(f"method applies to task 7 only (task 2 is the Kalman filter); got {method!r}")
+        if space != "point":
+            raise InvalidInputError(f"space applies to task 7 only; got {space!r}")
         return task2_consistency(runs, seed, progress)
     if task == 7:
-        return task7_consistency(method or "pairs", runs, seed, focal, pixel_noise_std, progress)
+        return task7_consistency(method or "pairs", runs, seed, focal, pixel_noise_std, progress, space)
     raise InvalidInputError(f"task must be 2 or 7; got {task!r}")

@@ -29,6 +29,11 @@ __all__ = ["DEFAULT_FOCAL", "DEFAULT_PIXEL_NOISE_STD", "Task7Result", "simulate_
 DEFAULT_FOCAL = 500.0
 DEFAULT_PIXEL_NOISE_STD = 10.0
 N_IMAGES = 25
+_METHOD_NAMES = {
+    "pairs": "Kalman fusion of pair triangulations (report)",
+    "batch": "Gauss-Newton ML, all images",
+    "recursive": "Kalman fusion of the images, inverse depth (iterated EKF)",
+}
 
 
 @dataclass(frozen=True)
@@ -91,9 +96,10 @@ def simulate_task7(
 
     Parameters
     ----------
-    method : {"pairs", "batch"}
+    method : {"pairs", "batch", "recursive"}
         ``"pairs"``: the report's Kalman fusion of consecutive pair triangulations;
-        ``"batch"``: Gauss-Newton maximum likelihood on all images so far.
+        ``"batch"``: Gauss-Newton maximum likelihood on all images so far;
+        ``"recursive"``: Kalman fusion of the images themselves (inverse depth, iterated EKF).
     seed : int
         Seed of the image noise (``np.random.default_rng(seed)``).
     focal : float
@@ -122,7 +128,7 @@ def simulate_task7(
     path = report_path(N_IMAGES)
     truth, obs = simulate_observations(1, np.random.default_rng(seed), f, sigma)
     est = estimate_landmarks(obs, path.rotations, path.translations, f, sigma, method=method)
-    name = "Kalman fusion of pair triangulations (report)" if method == "pairs" else "Gauss-Newton ML, all images"
+    name = _METHOD_NAMES[method]
     title = f"Task 7: structure from a moving camera, {name}; f = {f:g} px, image noise {sigma:g} px, seed {seed}"
     return Task7Result(
         task=7,

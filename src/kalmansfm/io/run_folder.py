@@ -21,6 +21,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..tracking.tracks import Tracks
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
+from .perspective import PerspectiveCameras, read_perspective_cameras, read_point_covariances
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
 from .summary import SUMMARY_FILE, RunSummary, read_summary
 from .tracks import read_tracks_npz
@@ -28,7 +29,7 @@ from .tracks import read_tracks_npz
 __all__ = ["CsvTable", "RunFolder", "load_run", "RUN_FIGURES"]
 
 #: Pre-rendered figures a run may carry, embedded in the report as they are.
-RUN_FIGURES = ("covariance_trace.png", "tracks.png", "structure.png")
+RUN_FIGURES = ("covariance_trace.png", "tracks.png", "structure.png", "fusion.png", "reconstruction.png")
 
 _FRAME_NAME = re.compile(r"^frames/frame_(\d+)\.png$")
 
@@ -50,6 +51,8 @@ class RunFolder:
     ----------
     ground_truth_tracks : (F, P, 2) true positions in the order of ``tracks.track_ids``,
         NaN where not visible (from ``ground_truth_tracks.csv``).
+    cameras : the registered cameras of a perspective reconstruction (``cameras.csv``).
+    point_covariances : (track ids, (P, 3, 3) covariances) of a ``structure.csv`` with covariance columns.
     """
 
     path: Path
@@ -63,6 +66,8 @@ class RunFolder:
     fusion_tables: tuple[CsvTable, ...]
     figures: dict[str, Path]
     data_files: tuple[str, ...]
+    cameras: PerspectiveCameras | None = None
+    point_covariances: tuple[np.ndarray, np.ndarray] | None = None
 
     def read_frames(self) -> list[np.ndarray]:
         """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none."""
@@ -98,8 +103,9 @@ def load_run(run_dir: str | Path) -> RunFolder:
     run_dir : path
         Folder with ``summary.json``; of the files it lists, these are read:
         ``frames/frame_NNN.png``, ``tracks.npz``, ``structure.csv``, ``motion.csv``,
-        ``ground_truth_tracks.csv``, ``ground_truth_points.csv``, ``fusion_tables/*.csv``
-        and the pre-rendered figures ``covariance_trace.png``, ``tracks.png``, ``structure.png``.
+        ``ground_truth_tracks.csv``, ``ground_truth_points.csv``, ``fusion_tables/*.csv``, ``cameras.csv``
+        and the pre-rendered figures ``covariance_trace.png``, ``tracks.png``, ``structure.png``,
+        ``fusion.png``.
 
     Raises
     ------
@@ -148,4 +154,6 @@ def load_run(run_dir: str | Path) -> RunFolder:
                             name.startswith("fusion_tables/") and name.endswith(".csv")),
         figures={name: folder / name for name in RUN_FIGURES if name in listed},
         data_files=tuple(sorted(name for name in listed if "/" not in name and not name.endswith(".png"))),
+        cameras=read_perspective_cameras(folder / "cameras.csv") if "cameras.csv" in listed else None,
+        point_covariances=read_point_covariances(folder / "structure.csv") if "structure.csv" in listed else None,
     )

@@ -47,10 +47,12 @@ def structure_csv(track_ids: np.ndarray, points: np.ndarray) -> str:
     return out.getvalue()
 
 
-def structure_ply(track_ids: np.ndarray, points: np.ndarray, *, comment: str = "kalmansfm reconstruction") -> str:
+def structure_ply(track_ids: np.ndarray, points: np.ndarray, *, comment: str = "kalmansfm reconstruction",
+                  properties: dict[str, np.ndarray] | None = None) -> str:
     """ASCII PLY text: one vertex (``float x, y, z``, ``int track_id``) per reconstructed point.
 
-    Opens in MeshLab, Open3D and CloudCompare.
+    ``properties`` adds a ``float`` vertex property per name, one value per point (e.g. an
+    uncertainty).  Opens in MeshLab, Open3D and CloudCompare.
 
     Examples
     --------
@@ -65,8 +67,17 @@ def structure_ply(track_ids: np.ndarray, points: np.ndarray, *, comment: str = "
     property int track_id
     end_header
     1 2 3 4
+    >>> structure_ply([4], [[1.0, 2.0, 3.0]], properties={"uncertainty": [0.25]}).splitlines()[-3:]
+    ['property float uncertainty', 'end_header', '1 2 3 4 0.25']
     """
+    pts_all = np.asarray(points, dtype=np.float64)
+    extra = {name: np.asarray(values, dtype=np.float64) for name, values in (properties or {}).items()}
+    for name, values in extra.items():
+        if values.shape != pts_all.shape[:1]:
+            raise InvalidInputError(f"property {name} needs one value per point ({pts_all.shape[0]}); got {values.shape}")
+    keep = np.isfinite(pts_all).all(axis=1) if pts_all.ndim == 2 else None
     ids, pts = _check(track_ids, points)
+    columns = [values[keep] for values in extra.values()]
     header = [
         "ply",
         "format ascii 1.0",
@@ -76,9 +87,11 @@ def structure_ply(track_ids: np.ndarray, points: np.ndarray, *, comment: str = "
         "property float y",
         "property float z",
         "property int track_id",
+        *(f"property float {name}" for name in extra),
         "end_header",
     ]
-    body = [f"{x:.9g} {y:.9g} {z:.9g} {i}" for i, (x, y, z) in zip(ids.tolist(), pts.tolist())]
+    body = [" ".join([f"{x:.9g} {y:.9g} {z:.9g} {i}", *(f"{c[k]:.9g}" for c in columns)])
+            for k, (i, (x, y, z)) in enumerate(zip(ids.tolist(), pts.tolist()))]
     return "\n".join(header + body) + "\n"
 
 

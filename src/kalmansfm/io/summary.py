@@ -32,6 +32,8 @@ __all__ = [
     "TrackMetrics",
     "TrackingMetrics",
     "StructureMetrics",
+    "FusionMetrics",
+    "PerspectiveMetrics",
     "Similarity",
     "TruthComparison",
     "read_summary",
@@ -120,6 +122,93 @@ class StructureMetrics:
 
 
 @dataclass(frozen=True)
+class FusionMetrics:
+    """Structure fusion with known cameras (``kalmansfm fuse``).
+
+    Attributes
+    ----------
+    method : ``"recursive"``, ``"batch"`` or ``"pairs"``.
+    cameras : views fused (frames with both a camera and observations).
+    points : tracks read; ``fused``, ``too_few_views``, ``degenerate``, ``behind_camera`` count them by status.
+    observations : measured positions in the fused views; ``rejected`` of them were outliers.
+    pixel_std_px : the image noise σ the covariances use; ``pixel_std_estimated`` when it came from
+        the residuals (2 degrees of freedom per observation minus 3 per point, after rejection).
+    degrees_of_freedom : 2 × accepted observations - 3 × fused points.
+    outlier_probability : the χ² gate's probability (1: no outlier test).
+    reprojection_rms_px : RMS reprojection error over the accepted observations of the fused points.
+    median_std : median over fused points of the RMS axis standard deviation √(tr Σ / 3), in world units.
+    orientation : +1, or -1 when the cameras' reconstruction is mirrored (points at negative depth).
+    passes : passes over the data (more than one when σ was estimated).
+    frames_without_camera : frames of the tracks that had observations but no camera (skipped).
+    """
+
+    method: str
+    cameras: int
+    points: int
+    fused: int
+    too_few_views: int
+    degenerate: int
+    behind_camera: int
+    observations: int
+    rejected: int
+    pixel_std_px: float
+    pixel_std_estimated: bool
+    degrees_of_freedom: int
+    outlier_probability: float
+    reprojection_rms_px: float | None
+    median_std: float | None
+    orientation: int
+    passes: int
+    frames_without_camera: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class PerspectiveMetrics:
+    """Calibrated reconstruction with unknown motion (``reconstruct --camera perspective``).
+
+    Attributes
+    ----------
+    method : ``"batch"`` (bundle adjustment) or ``"recursive"`` (relative orientations + recursive fusion).
+    intrinsics : where K came from (a K.csv, or the focal length and image size).
+    frames, registered_frames : frames of the tracks and how many got a pose; ``unregistered``
+        lists the others (frame numbers).
+    points : tracks read; ``reconstructed``, ``too_few_views``, ``degenerate`` count them by status.
+    observations, inliers : measured positions in the frames, and those used in the final estimate.
+    pixel_std_px : σ of the image noise from the inlier residuals (degrees of freedom counted).
+    reprojection_rms_px : RMS length of the 2-D reprojection errors over the inliers.
+    degrees_of_freedom : 2 × inliers - 6 × cameras - 3 × points + 7.
+    initial_pair : the two frames the reconstruction started from.
+    outlier_threshold_px, outlier_probability : the outlier test.
+    median_point_std : median over points of √(tr Σ / 3), world units (initial baseline = 1).
+    median_centre_std : median over registered cameras of the centre's √(tr Σ_C / 3).
+    covariance_gauge : how the covariances are to be read.
+    camera_choice : with ``--camera auto``, why the perspective model was kept (else None).
+    """
+
+    method: str
+    intrinsics: str
+    frames: int
+    registered_frames: int
+    unregistered: tuple[int, ...]
+    points: int
+    reconstructed: int
+    too_few_views: int
+    degenerate: int
+    observations: int
+    inliers: int
+    pixel_std_px: float
+    reprojection_rms_px: float
+    degrees_of_freedom: int
+    initial_pair: tuple[int, int]
+    outlier_threshold_px: float
+    outlier_probability: float
+    median_point_std: float | None
+    median_centre_std: float | None
+    covariance_gauge: str
+    camera_choice: str | None = None
+
+
+@dataclass(frozen=True)
 class Similarity:
     """``target ≈ scale * rotation @ source + translation``; ``rotation`` may be a reflection (det -1)."""
 
@@ -175,7 +264,7 @@ class RunSummary:
 
     Attributes
     ----------
-    command : the command that made the run (``demo``, ``track``, ``reconstruct``, ``scene``, ``batch``).
+    command : the command that made the run (``demo``, ``track``, ``reconstruct``, ``fuse``, ``scene``, ``batch``).
     input : what was read: a path, or a description of the built-in scene.
     created : ISO time stamp (UTC).
     versions : software versions.
@@ -183,6 +272,8 @@ class RunSummary:
     smoothed : the tracks were RTS-smoothed (True or the lag) or not.
     tracking : tracking statistics.
     structure : the factorization's figures.
+    fusion : structure fusion with known cameras (``fuse``).
+    perspective : calibrated reconstruction with unknown motion (``reconstruct --camera perspective``).
     structure_error : why there is no structure when factorization was attempted and failed.
     truth : the comparison with ground truth, when there is one.
     scene : the parameters of a rendered built-in scene.
@@ -201,6 +292,8 @@ class RunSummary:
     smoothed: bool | int = False
     tracking: TrackingMetrics | None = None
     structure: StructureMetrics | None = None
+    fusion: FusionMetrics | None = None
+    perspective: PerspectiveMetrics | None = None
     structure_error: str | None = None
     truth: TruthComparison | None = None
     scene: Any = None

@@ -6,6 +6,7 @@ command                library call
 ``kalmansfm demo``     :func:`run_demo` (frames → tracks → structure → report)
 ``kalmansfm track``    :func:`run_track`
 ``kalmansfm reconstruct``  :func:`run_reconstruct`
+``kalmansfm fuse``     :func:`run_fuse` (known cameras; chunks on Dask on request)
 ``kalmansfm scene``    :func:`run_scene`
 ``kalmansfm batch``    :func:`run_batch` (:func:`run_demo` per sequence, on Dask)
 ``kalmansfm report``   :func:`kalmansfm.report.build_report`
@@ -16,6 +17,7 @@ command                library call
 
 from .batch import BatchResult, BatchRow, run_batch
 from .demo import DemoRun, describe, run_demo
+from .fuse import FuseRun, run_fuse
 from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, tracking_metrics
 from .reconstruct import ReconstructRun, read_tracks_for_factorization, run_reconstruct
 from .scene import run_scene
@@ -25,6 +27,7 @@ __all__ = [
     "BatchResult",
     "BatchRow",
     "DemoRun",
+    "FuseRun",
     "ReconstructRun",
     "TrackRun",
     "compare_with_truth",
@@ -33,6 +36,7 @@ __all__ = [
     "read_tracks_for_factorization",
     "run_batch",
     "run_demo",
+    "run_fuse",
     "run_reconstruct",
     "run_scene",
     "run_track",

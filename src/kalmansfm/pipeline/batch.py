@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import io
 import logging
-import os
 import re
 import time
 from collections.abc import Sequence
@@ -24,6 +23,7 @@ from ..errors import InvalidInputError, KalmanSfmError
 from ..io.atomic import atomic_write, check_output_directory
 from ..io.frames import read_frames
 from ..io.summary import SUMMARY_FILE, RunSummary, read_summary
+from .cluster import check_workers, dask_client
 from .demo import run_demo
 
 __all__ = ["BatchRow", "BatchResult", "check_sequence", "run_batch", "SCENE_PREFIX"]
@@ -197,9 +197,7 @@ def run_batch(
     """
     if not sequences:
         raise InvalidInputError("give at least one sequence")
-    if n_workers is not None and n_workers < 1:
-        # a LocalCluster without workers would wait for ever
-        raise InvalidInputError(f"n_workers must be >= 1; got {n_workers}")
+    check_workers(n_workers)
     root = check_output_directory(out_dir)
     root.mkdir(parents=True, exist_ok=True)
     names = _folder_names(list(sequences))
@@ -216,26 +214,9 @@ def run_batch(
             todo.append((k, spec, str(folder)))
 
     if todo:
-        # Dask logs every worker start and stop at INFO; keep stderr for our own messages.
-        os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
-        logging.getLogger("distributed").setLevel(logging.WARNING)
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import as_completed
 
-        cluster = None
-        if scheduler is None:
-            # ":0": the diagnostics server takes any free port, so two batches can run side by side
-            cluster = LocalCluster(
-                n_workers=n_workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                # the scheduler's HTTP server starts even without a dashboard; on a free port, not
-                # 8787, so a second cluster on the machine does not print a port warning
-                scheduler_kwargs={"dashboard_address": ":0"},
-                silence_logs=logging.WARNING,
-            )
-        client = Client(scheduler if scheduler is not None else cluster)
-        try:
+        with dask_client(scheduler, n_workers) as client:
             futures = {
                 client.submit(process_sequence, spec, folder, options, key=f"kalmansfm-{k}-{name}", pure=False): k
                 for (k, spec, folder), name in zip(todo, [names[k] for k, _, _ in todo])
@@ -251,10 +232,6 @@ def run_batch(
                     rows[k] = future.result()
                 except Exception as exc:  # a worker died: the sequence failed, the batch goes on
                     rows[k] = BatchRow(sequences[k], str(root / names[k]), "failed", error=f"{type(exc).__name__}: {exc}")
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
 
     ordered = tuple(rows[k] for k in range(len(sequences)))
     buffer = io.StringIO()

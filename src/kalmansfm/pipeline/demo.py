@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import NotEnoughDataError, ReportInterrupted
+from ..errors import InvalidInputError, NotEnoughDataError, ReportInterrupted
 from ..io.atomic import atomic_write, check_output_directory, output_directory
 from ..io.frames import read_frames, stage_frames
 from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
@@ -22,9 +22,12 @@ from ..report.drawing import track_colors
 from ..report.html import build_report
 from ..scenes import Scene, render_scene
 from ..scenes.files import scene_description, stage_ground_truth
+from ..io.intrinsics import intrinsics_from_focal
 from ..structure import Reconstruction
+from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
 from ..tracking import TrackerSettings, Tracks, smooth_tracks, track
 from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, tracking_metrics
+from .perspective import perspective_metrics, stage_perspective
 from .stage import Stopwatch, stage_structure, stage_summary, stage_tracking
 
 __all__ = ["DemoRun", "describe", "run_demo"]
@@ -40,8 +43,9 @@ class DemoRun:
     ----------
     out_dir : the run folder.
     tracks : the tracker's output (smoothed when the run smoothed).
-    reconstruction : the factorization, or None when it was not possible (the reason is
-        ``summary.structure_error``).
+    reconstruction : the factorization, or None when it was not possible or the camera is
+        perspective (the reason is ``summary.structure_error``).
+    perspective : the calibrated reconstruction (``camera="perspective"``), or None.
     summary : the run's record, as written to ``summary.json``.
     report : path of ``report.html`` (None when the report was not built).
     scene : the built-in scene when it was the input.
@@ -53,6 +57,7 @@ class DemoRun:
     summary: RunSummary
     report: Path | None = None
     scene: Scene | None = field(default=None, repr=False)
+    perspective: PerspectiveReconstruction | None = None
 
 
 def _load_frames(input: str | os.PathLike[str]) -> list[np.ndarray]:
@@ -75,6 +80,9 @@ def run_demo(
     html: bool = True,
     progress: bool = False,
     command: str = "demo",
+    camera: str = "affine",
+    focal: float | None = None,
+    perspective: PerspectiveSettings | None = None,
 ) -> DemoRun:
     """Track, factorize, compare with ground truth when known, and write a run folder with its report.
 
@@ -93,6 +101,11 @@ def run_demo(
     html : build ``report.html``.
     progress : progress bars on stderr.
     command : recorded in ``summary.json``.
+    camera : ``"affine"`` (factorization) or ``"perspective"``: calibrated reconstruction
+        (:func:`~kalmansfm.structure.perspective.reconstruct_perspective`) of the measured,
+        unsmoothed tracks with the focal length ``focal`` (pixels) and the principal point at the
+        image centre; needs ``input``.
+    perspective : its settings.
 
     Returns
     -------
@@ -108,6 +121,11 @@ def run_demo(
     >>> run.summary.truth.tracking_rms_error_px < 0.5
     True
     """
+    if camera not in ("affine", "perspective"):
+        raise InvalidInputError(f"camera must be 'affine' or 'perspective'; got {camera!r}")
+    if camera == "perspective" and (input is None or focal is None):
+        raise InvalidInputError("--camera perspective needs your own sequence (--input; the built-in scene is seen "
+                                "by an affine camera) and its focal length in pixels (--focal)")
     check_output_directory(out_dir)  # before the work, not after it
     clock = Stopwatch()
     scene = None
@@ -124,18 +142,33 @@ def run_demo(
             source = str(input)
     with clock.step("tracking"):
         tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
+    measured = tracks
     if smooth:
         with clock.step("smoothing"):
             tracks = smooth_tracks(tracks)
 
     reconstruction: Reconstruction | None = None
+    calibrated: PerspectiveReconstruction | None = None
     structure_error = None
-    with clock.step("factorization"):
-        try:
-            reconstruction = factorize_tracks(tracks, weighted=weighted)
-        except NotEnoughDataError as exc:
-            structure_error = str(exc)
-            log.warning("factorization skipped: %s", exc)
+    if camera == "perspective":
+        settings_p = perspective or PerspectiveSettings()
+        height, width = frames[0].shape[:2]
+        K = intrinsics_from_focal(focal, (width, height), measured.n_frames)  # type: ignore[arg-type]
+        source_k = f"focal {focal:g} px, principal point at the centre of the {width}x{height} image"
+        with clock.step("perspective reconstruction"):
+            try:
+                # the measured positions: smoothing would correlate the errors of neighbouring frames
+                calibrated = reconstruct_perspective(measured.observations(), K, settings=settings_p)
+            except NotEnoughDataError as exc:
+                structure_error = str(exc)
+                log.warning("perspective reconstruction skipped: %s", exc)
+    else:
+        with clock.step("factorization"):
+            try:
+                reconstruction = factorize_tracks(tracks, weighted=weighted)
+            except NotEnoughDataError as exc:
+                structure_error = str(exc)
+                log.warning("factorization skipped: %s", exc)
     truth = None
     if scene is not None:
         truth = compare_with_truth(tracks, reconstruction, scene.ground_truth())
@@ -151,6 +184,9 @@ def run_demo(
         structure_error=structure_error,
         truth=truth,
         scene=None if scene is None else scene.parameters,
+        perspective=None if calibrated is None else perspective_metrics(
+            calibrated, measured.observations(), measured.frames, source_k, settings_p),
+        warnings=() if calibrated is None else calibrated.warnings,
     )
     with output_directory(out_dir) as out:
         with clock.step("writing"):
@@ -159,6 +195,9 @@ def run_demo(
             if reconstruction is not None:
                 names += stage_structure(out, reconstruction, tracks.track_ids, frames=tracks.frames,
                                          colors=track_colors(tracks.n_tracks))
+            if calibrated is not None:
+                names += stage_perspective(out, calibrated, measured.frames, measured.track_ids,
+                                           comment=f"kalmansfm demo of {source}")
             if scene is not None:
                 names += stage_ground_truth(out, scene)
         summary = stage_summary(out, summary, clock, names)
@@ -178,7 +217,7 @@ def run_demo(
         # the report's time goes into the one timing record (summary.json is replaced atomically)
         summary = replace(summary, timings_s=clock.timings, total_s=clock.total())
         atomic_write(Path(out_dir) / SUMMARY_FILE, lambda p: p.write_text(summary_json(summary), encoding="utf-8"))
-    return DemoRun(Path(out_dir), tracks, reconstruction, summary, report, scene)
+    return DemoRun(Path(out_dir), tracks, reconstruction, summary, report, scene, calibrated)
 
 
 def describe(run: DemoRun) -> str:
@@ -195,8 +234,13 @@ def describe(run: DemoRun) -> str:
     if truth is not None and truth.tracking_rms_error_px is not None:
         line += f", RMS error {truth.tracking_rms_error_px:.3f} px ({truth.within_2px:.1%} within 2 px)"
     lines.append(line)
-    f = s.structure
-    if f is None:
+    f, p = s.structure, s.perspective
+    if p is not None:
+        lines.append(f"perspective reconstruction: {p.registered_frames} of {p.frames} frames registered, "
+                     f"{p.reconstructed} of {p.points} points; reprojection RMS {p.reprojection_rms_px:.3f} px, "
+                     f"pixel noise sigma {p.pixel_std_px:.3f} px")
+        lines.extend(f"warning: {w}" for w in s.warnings)
+    elif f is None:
         lines.append(f"structure: not computed ({s.structure_error})")
     else:
         sv = ", ".join(f"{v:.4g}" for v in f.singular_values[:5])

@@ -1,4 +1,12 @@
-"""``kalmansfm reconstruct``: shape and motion from a tracks file, written as a run folder."""
+"""``kalmansfm reconstruct``: shape and motion from a tracks file, written as a run folder.
+
+Three camera models: ``affine`` (the seed's orthographic factorization, the default),
+``perspective`` (calibrated reconstruction with unknown motion: bundle adjustment or the
+report's recursive fusion, :func:`~kalmansfm.structure.perspective.reconstruct_perspective`)
+and ``auto``, which runs both and keeps the perspective model when its reprojection RMS
+over its inliers is at most the affine model's over all observations (and the affine one
+when the perspective reconstruction is impossible, e.g. without parallax).
+"""
 
 from __future__ import annotations
 
@@ -8,13 +16,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._version import __version__
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary
 from ..io.tracks import read_tracks
 from ..structure import Reconstruction
+from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
 from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, structure_metrics
+from .perspective import CAMERA_MODELS, perspective_metrics, resolve_intrinsics, stage_perspective
 from .stage import Stopwatch, stage_structure, stage_summary
 
 __all__ = ["ReconstructRun", "read_tracks_for_factorization", "run_reconstruct"]
@@ -24,12 +34,17 @@ log = logging.getLogger("kalmansfm")
 
 @dataclass(frozen=True)
 class ReconstructRun:
-    """The observations used, the reconstruction and the summary of one ``reconstruct`` run."""
+    """The observations used, the reconstruction and the summary of one ``reconstruct`` run.
+
+    ``reconstruction`` is the affine factorization and ``perspective`` the calibrated
+    reconstruction; the one of the camera model written is set (both may be with ``auto``).
+    """
 
     out_dir: Path
     tracks: Tracks
-    reconstruction: Reconstruction
+    reconstruction: Reconstruction | None
     summary: RunSummary
+    perspective: PerspectiveReconstruction | None = None
 
 
 def read_tracks_for_factorization(path: str | os.PathLike[str], *, smooth: bool | None = None) -> Tracks:
@@ -81,22 +96,38 @@ def run_reconstruct(
     tracks_path: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
     *,
+    camera: str = "affine",
+    intrinsics: str | os.PathLike[str] | None = None,
+    focal: float | None = None,
+    image_size: tuple[int, int] | None = None,
+    perspective: PerspectiveSettings | None = None,
     weighted: bool = True,
     smooth: bool | None = None,
     max_iterations: int = 500,
     plot: bool = True,
 ) -> ReconstructRun:
-    """Factorize the tracks of ``tracks_path`` and write structure.csv, structure.ply, motion.csv,
-    structure.png and summary.json to ``out_dir``.
+    """Reconstruct the tracks of ``tracks_path`` and write the run folder ``out_dir``, all or nothing.
+
+    Affine (factorization): structure.csv, structure.ply, motion.csv, structure.png, summary.json.
+    Perspective: structure.csv with covariances and status, cameras.csv, structure.ply with a
+    per-point uncertainty, reconstruction.png (camera path, points coloured by uncertainty),
+    summary.json.
 
     Parameters
     ----------
     tracks_path : ``tracks.npz``, ``tracks.csv`` or a ``frame,track_id,x,y`` CSV.
     out_dir : the run folder.
-    weighted : weight observations by 1 / σ² when the file has standard deviations.
-    smooth : see :func:`read_tracks_for_factorization`.
-    max_iterations : cap on the missing-data refinement iterations.
-    plot : draw structure.png.
+    camera : ``"affine"``, ``"perspective"`` or ``"auto"`` (see the module notes).
+    intrinsics : ``K.csv`` (:mod:`kalmansfm.io.intrinsics`), for perspective and auto …
+    focal : … or the focal length in pixels, principal point at the image centre; the image
+        size is ``image_size`` (width, height) or the one recorded in the tracks file.
+    perspective : :class:`~kalmansfm.structure.perspective.PerspectiveSettings` (method,
+        outlier threshold, …).
+    weighted : factorization: weight observations by 1 / σ² when the file has standard deviations.
+    smooth : see :func:`read_tracks_for_factorization`; the perspective model reads the tracks
+        as they are unless ``smooth`` is True.
+    max_iterations : factorization: cap on the missing-data refinement iterations.
+    plot : draw structure.png / reconstruction.png.
 
     Examples
     --------
@@ -109,20 +140,64 @@ def run_reconstruct(
     >>> round(run.summary.structure.residual_rms_px, 2)
     2.88
     """
+    if camera not in CAMERA_MODELS:
+        raise InvalidInputError(f"camera must be one of {', '.join(CAMERA_MODELS)}; got {camera!r}")
     check_output_directory(out_dir)
     clock = Stopwatch()
-    tracks = read_tracks_for_factorization(tracks_path, smooth=smooth)
-    has_weights = weighted and tracks.covariances is not None
-    log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
-    with clock.step("factorization"):
-        reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
-    summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
-                         smoothed=tracks.smoothed,
-                         structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed))
     name = Path(tracks_path).name
+    if camera == "affine":
+        tracks = read_tracks_for_factorization(tracks_path, smooth=smooth)
+    else:
+        tracks = read_tracks_for_factorization(tracks_path, smooth=bool(smooth))
+        K, source = resolve_intrinsics(tracks.frames, intrinsics=intrinsics, focal=focal, image_size=image_size,
+                                       tracks_image_size=tracks.image_size)
+    log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
+    reconstruction: Reconstruction | None = None
+    rec: PerspectiveReconstruction | None = None
+    settings = perspective or PerspectiveSettings()
+    has_weights = weighted and tracks.covariances is not None
+    if camera in ("affine", "auto"):
+        with clock.step("factorization"):
+            reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
+    choice = None
+    if camera in ("perspective", "auto"):
+        with clock.step("perspective reconstruction"):
+            try:
+                rec = reconstruct_perspective(tracks.observations(), K, settings=settings)
+            except NotEnoughDataError as exc:
+                if camera == "perspective":
+                    raise
+                choice = f"affine: the perspective reconstruction was impossible ({exc})"
+    if camera == "auto" and reconstruction is not None and rec is not None:
+        affine_rms = reconstruction.residual_rms
+        if rec.reprojection_rms <= affine_rms:
+            choice = (f"perspective: reprojection RMS {rec.reprojection_rms:.3g} px over its inliers <= the affine "
+                      f"model's {affine_rms:.3g} px")
+        else:
+            choice = (f"affine: reprojection RMS {affine_rms:.3g} px < the perspective model's "
+                      f"{rec.reprojection_rms:.3g} px over its inliers")
+    use_perspective = rec is not None and (camera == "perspective" or (choice or "").startswith("perspective"))
+    if use_perspective:
+        assert rec is not None
+        summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
+                             smoothed=tracks.smoothed,
+                             perspective=perspective_metrics(rec, tracks.observations(), tracks.frames, source,
+                                                             settings, camera_choice=choice),
+                             warnings=rec.warnings)
+    else:
+        assert reconstruction is not None
+        summary = RunSummary(command="reconstruct", input=str(tracks_path), settings=tracks.settings,
+                             smoothed=tracks.smoothed,
+                             structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed),
+                             warnings=() if choice is None else (f"--camera auto chose {choice}",))
     with output_directory(out_dir) as out:
         with clock.step("writing"):
-            names = stage_structure(out, reconstruction, tracks.track_ids, frames=tracks.frames,
-                                    comment=f"kalmansfm {__version__} from {name}", plot=plot)
+            if use_perspective:
+                names = stage_perspective(out, rec, tracks.frames, tracks.track_ids,  # type: ignore[arg-type]
+                                          comment=f"kalmansfm {__version__} from {name}", plot=plot)
+            else:
+                names = stage_structure(out, reconstruction, tracks.track_ids,  # type: ignore[arg-type]
+                                        frames=tracks.frames, comment=f"kalmansfm {__version__} from {name}",
+                                        plot=plot)
         summary = stage_summary(out, summary, clock, names)
-    return ReconstructRun(Path(out_dir), tracks, reconstruction, summary)
+    return ReconstructRun(Path(out_dir), tracks, reconstruction, summary, rec)

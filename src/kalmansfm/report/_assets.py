@@ -142,7 +142,8 @@ JS = r"""
       var camPath = [];
       (data.cameras || []).forEach(function (m, f) {
         var k = m[2], d = 1.6 * data.radius;
-        var q = apply(view, [-d * k[0], -d * k[1], -d * k[2]]);
+        // a perspective run knows where each camera stood; a factorization only where it looked from
+        var q = data.camera_centres ? apply(view, data.camera_centres[f]) : apply(view, [-d * k[0], -d * k[1], -d * k[2]]);
         camPath.push(q);
         items.push({ q: q, kind: "camera", frame: data.camera_frames[f] });
       });

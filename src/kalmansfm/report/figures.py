@@ -32,6 +32,9 @@ __all__ = [
     "track_error_per_frame",
     "track_error_figure",
     "rotation_error_figure",
+    "fusion_convergence_figure",
+    "uncertainty_colors",
+    "camera_path_figure",
 ]
 
 
@@ -267,4 +270,84 @@ def rotation_error_figure(errors_deg: Sequence[float]) -> bytes:
     ax.set_xlabel("frame")
     ax.set_ylabel("rotation error (deg)")
     ax.grid(alpha=0.3)
+    return _figure_png(fig)
+
+
+def fusion_convergence_figure(views_used: np.ndarray, uncertainty: np.ndarray, points: np.ndarray,
+                              *, sample: int = 25) -> bytes | None:
+    """How each point's uncertainty shrinks as views are fused (the paper's convergence picture).
+
+    ``views_used`` (H,) is the number of observations behind each history entry,
+    ``uncertainty`` (H,) its √(tr Σ / 3) and ``points`` (H,) the point it belongs to.
+    Draws the median and the quartiles over points per number of views, and the paths of
+    up to ``sample`` points (the ones with the most views).
+    """
+    n, u, p = np.asarray(views_used), np.asarray(uncertainty, dtype=float), np.asarray(points)
+    good = np.isfinite(u) & (u > 0)
+    if not good.any():
+        return None
+    n, u, p = n[good], u[good], p[good]
+    counts = np.arange(n.min(), n.max() + 1)
+    quartiles = np.array([np.quantile(u[n == k], [0.25, 0.5, 0.75]) if (n == k).any() else [np.nan] * 3
+                          for k in counts])
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    order = np.argsort(-np.bincount(p, minlength=p.max() + 1), kind="stable")[:sample]
+    for k, point in enumerate(order):
+        mine = p == point
+        if mine.sum() > 1:
+            ax.plot(n[mine], u[mine], color="#999999", lw=0.6, alpha=0.6, label="single points" if k == 0 else None)
+    ax.fill_between(counts, quartiles[:, 0], quartiles[:, 2], color="#1f77b4", alpha=0.25, label="quartiles")
+    ax.plot(counts, quartiles[:, 1], color="#1f77b4", marker="o", label="median over points")
+    ax.set_yscale("log")
+    ax.set_xlabel("views fused")
+    ax.set_ylabel("uncertainty √(tr Σ / 3)")
+    ax.set_xticks(counts if len(counts) <= 20 else counts[:: max(1, len(counts) // 10)])
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return _figure_png(fig)
+
+
+def uncertainty_colors(uncertainty: np.ndarray) -> tuple[list[str], float, float]:
+    """Hex colours of per-point uncertainties on a log scale (viridis: dark = certain, yellow = uncertain).
+
+    Returns the colours and the (low, high) uncertainties the scale spans (5th and 95th percentiles).
+    """
+    u = np.asarray(uncertainty, dtype=float)
+    finite = np.isfinite(u) & (u > 0)
+    if not finite.any():
+        return ["#888888"] * len(u), np.nan, np.nan
+    low, high = np.percentile(u[finite], [5, 95])
+    high = max(high, low * 1.0001)
+    t = np.clip((np.log(np.where(finite, u, low)) - np.log(low)) / (np.log(high) - np.log(low)), 0.0, 1.0)
+    rgba = plt.get_cmap("viridis")(t)
+    return [matplotlib.colors.to_hex(c) for c in rgba], float(low), float(high)
+
+
+def camera_path_figure(centres: np.ndarray, frames: Sequence[int], points: np.ndarray,
+                       uncertainty: np.ndarray) -> bytes:
+    """Top (X–Z) and side (Z–Y) views of the camera centres (the path, frames labelled at its ends and every
+    tenth) and of the points coloured by their uncertainty √(tr Σ / 3) on a log scale."""
+    C, X, u = np.asarray(centres, float), np.asarray(points, float), np.asarray(uncertainty, float)
+    colors, low, high = uncertainty_colors(u)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    for ax, (a, b, title) in zip(axes, ((0, 2, "top (X–Z)"), (2, 1, "side (Z–Y)"))):
+        order = np.argsort(-np.nan_to_num(u, nan=0.0))  # most certain drawn last, on top
+        ax.scatter(X[order, a], X[order, b], c=[colors[k] for k in order], s=9, linewidths=0, zorder=2)
+        ax.plot(C[:, a], C[:, b], color="#9467bd", lw=1.2, zorder=3)
+        ax.scatter(C[:, a], C[:, b], color="#9467bd", marker="s", s=18, zorder=4, label="camera centres")
+        for k, f in enumerate(frames):
+            if k in (0, len(frames) - 1) or f % 10 == 0:
+                ax.annotate(str(f), (C[k, a], C[k, b]), textcoords="offset points", xytext=(4, 4), fontsize=7,
+                            color="#6a3d9a")
+        if b == 1:
+            ax.invert_yaxis()
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("XYZ"[a])
+        ax.set_ylabel("XYZ"[b])
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, loc="best")
+    if np.isfinite(low):
+        mappable = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.LogNorm(low, high), cmap="viridis")
+        fig.colorbar(mappable, ax=axes, shrink=0.8, label="point uncertainty √(tr Σ / 3)")
     return _figure_png(fig)

@@ -145,6 +145,18 @@ def _section_header(run: RunFolder) -> str:
         cards.append(("estimates within 2 px of truth", _percent(truth.within_2px)))
     if structure is not None and _is_number(structure.residual_rms_px):
         cards.append(("factorization residual RMS", f"{structure.residual_rms_px:.3g} px"))
+    fusion = s.fusion
+    if fusion is not None:
+        cards.append(("points fused", f"{fusion.fused} of {fusion.points}"))
+        cards.append(("pixel noise σ" + (" (estimated)" if fusion.pixel_std_estimated else ""),
+                      f"{fusion.pixel_std_px:.3g} px"))
+        cards.append(("observations rejected", f"{fusion.rejected} of {fusion.observations}"))
+    perspective = s.perspective
+    if perspective is not None:
+        cards.append(("frames registered", f"{perspective.registered_frames} of {perspective.frames}"))
+        cards.append(("points reconstructed", f"{perspective.reconstructed} of {perspective.points}"))
+        cards.append(("reprojection RMS", f"{perspective.reprojection_rms_px:.3g} px"))
+        cards.append(("pixel noise σ (estimated)", f"{perspective.pixel_std_px:.3g} px"))
     if truth is not None and _is_number(truth.shape_error_pct):
         cards.append(("3D shape error vs truth", f"{truth.shape_error_pct:.2f} %"))
     total = _total_seconds(s)
@@ -403,10 +415,18 @@ def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray
     centre = structure.points.mean(axis=0)
     points = structure.points - centre
     radius = float(np.linalg.norm(points, axis=1).max()) or 1.0
+    colors = _colors_of(run, structure.track_ids)
+    if run.point_covariances is not None:
+        # points coloured by their uncertainty (viridis, log scale), matched to structure.csv by track id
+        ids, cov = run.point_covariances
+        u = np.full(len(structure.track_ids), np.nan)
+        common, here, there = np.intersect1d(structure.track_ids, ids, return_indices=True)
+        u[here] = np.sqrt(np.trace(cov[there], axis1=1, axis2=2) / 3.0)
+        colors = figures.uncertainty_colors(u)[0]
     payload: dict[str, Any] = {
         "points": np.round(points, 6).tolist(),
         "labels": structure.track_ids.tolist(),
-        "colors": _colors_of(run, structure.track_ids),
+        "colors": colors,
         "radius": radius,
         "truth": None if truth_here is None else np.round(truth_here - centre, 6).tolist(),
         "cameras": [],
@@ -415,6 +435,11 @@ def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray
     if run.motion is not None and len(run.motion.frames):
         payload["cameras"] = np.round(camera_rotation_matrices(run.motion.rows), 6).tolist()
         payload["camera_frames"] = run.motion.frames.tolist()
+    if run.cameras is not None and len(run.cameras.frames):
+        payload["cameras"] = np.round(run.cameras.rotations, 6).tolist()
+        payload["camera_frames"] = run.cameras.frames.tolist()
+        payload["camera_centres"] = np.round(run.cameras.centres - centre, 6).tolist()
+        payload["radius"] = max(radius, float(np.linalg.norm(run.cameras.centres - centre, axis=1).max()) / 1.6)
     return payload
 
 
@@ -454,13 +479,15 @@ def _section_shape(run: RunFolder) -> str | None:
     camera_slider = (
         '<label>view from camera <input id="view3d-camera" type="range" min="0" max="0" value="0" '
         'aria-label="camera"></label> <span id="view3d-camera-label"></span>'
-        if run.motion is not None
+        if run.motion is not None or run.cameras is not None
         else ""
     )
+    squares = ("the recovered camera centres (the camera path); points coloured by their uncertainty, dark = "
+               "certain, yellow = uncertain" if run.cameras is not None
+               else "the direction each camera looked from (the recovered camera path)")
     parts.append(
         '<h3 id="interactive-3d">Interactive view</h3>'
-        '<p class="note">Drag to rotate, wheel to zoom. Purple squares: the direction each camera looked from '
-        "(the recovered camera path).</p>"
+        f'<p class="note">Drag to rotate, wheel to zoom. Purple squares: {squares}.</p>'
         f'<div class="controls"><button id="view3d-reset" type="button">reset</button>{truth_toggle}'
         f"{camera_slider}</div>"
         '<canvas id="view3d" class="view3d" width="720" height="440"></canvas>'
@@ -541,6 +568,69 @@ def _section_ground_truth(run: RunFolder) -> str | None:
     return "".join(parts) or None
 
 
+def _section_fusion(run: RunFolder) -> str | None:
+    fusion = run.summary.fusion
+    if fusion is None:
+        return None
+    facts: list[tuple[str, Any]] = [
+        ("method", fusion.method),
+        ("cameras (views) fused", fusion.cameras),
+        ("points: fused / too few views / degenerate / behind camera",
+         f"{fusion.fused} / {fusion.too_few_views} / {fusion.degenerate} / {fusion.behind_camera}"),
+        ("observations used / rejected as outliers", f"{fusion.observations - fusion.rejected} / {fusion.rejected}"),
+        ("pixel noise σ (px)" + (", estimated from the residuals" if fusion.pixel_std_estimated else ", given"),
+         fusion.pixel_std_px),
+        ("degrees of freedom (2 per observation − 3 per point)", fusion.degrees_of_freedom),
+        ("outlier test probability (χ² gate)", fusion.outlier_probability),
+        ("reprojection RMS of the accepted observations (px)", fusion.reprojection_rms_px),
+        ("median point uncertainty √(tr Σ / 3)", fusion.median_std),
+        ("scene orientation", "mirrored (points at negative depth)" if fusion.orientation < 0 else "normal"),
+    ]
+    parts = [_table(["", "value"], facts)]
+    if fusion.frames_without_camera:
+        shown = ", ".join(str(f) for f in fusion.frames_without_camera[:10])
+        more = " …" if len(fusion.frames_without_camera) > 10 else ""
+        parts.append(f'<p class="warn">Frames with observations but no camera, skipped: {_esc(shown)}{more}</p>')
+    if "fusion.png" in run.figures:
+        parts.append(_figure(run.figures["fusion.png"].read_bytes(),
+                             "Each point's uncertainty as views are fused: median and quartiles over points, "
+                             "and the paths of the points seen most often."))
+    return "".join(parts)
+
+
+def _section_perspective(run: RunFolder) -> str | None:
+    p = run.summary.perspective
+    if p is None:
+        return None
+    facts: list[tuple[str, Any]] = [
+        ("method", "bundle adjustment (batch)" if p.method == "batch" else "relative orientations + recursive fusion"),
+        ("intrinsics", p.intrinsics),
+        ("frames registered", f"{p.registered_frames} of {p.frames}"),
+        ("initial pair (frames)", f"{p.initial_pair[0]}, {p.initial_pair[1]}"),
+        ("points: reconstructed / too few views / degenerate", f"{p.reconstructed} / {p.too_few_views} / {p.degenerate}"),
+        ("observations used (inliers) / measured", f"{p.inliers} / {p.observations}"),
+        ("pixel noise σ from the inlier residuals (px)", p.pixel_std_px),
+        ("degrees of freedom (2 per inlier − 6 per camera − 3 per point + 7)", p.degrees_of_freedom),
+        ("reprojection RMS over the inliers (px)", p.reprojection_rms_px),
+        ("outlier test: threshold (px) / χ² probability", f"{p.outlier_threshold_px:g} / {p.outlier_probability:g}"),
+        ("median point uncertainty √(tr Σ / 3) (initial baseline = 1)", p.median_point_std),
+        ("median camera-centre uncertainty", p.median_centre_std),
+        ("covariances", p.covariance_gauge),
+    ]
+    if p.camera_choice:
+        facts.insert(0, ("camera model (--camera auto)", p.camera_choice))
+    parts = [_table(["", "value"], facts)]
+    if p.unregistered:
+        shown = ", ".join(str(f) for f in p.unregistered[:12])
+        more = " …" if len(p.unregistered) > 12 else ""
+        parts.append(f'<p class="warn">Frames without a pose (unregistered): {_esc(shown)}{more}</p>')
+    if "reconstruction.png" in run.figures:
+        parts.append(_figure(run.figures["reconstruction.png"].read_bytes(),
+                             "The recovered camera path (purple, frame numbers) and the points coloured by their "
+                             "uncertainty √(tr Σ / 3), free-network gauge, log scale."))
+    return "".join(parts)
+
+
 def _section_tables(run: RunFolder) -> str | None:
     parts = []
     for table in run.fusion_tables:
@@ -581,6 +671,8 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         ("uncertainty", "Uncertainty over time", lambda: _section_uncertainty(run)),
         ("tracks", "Tracking statistics", lambda: _section_tracks(run)),
         ("factorization", "Factorization", lambda: _section_factorization(run)),
+        ("fusion", "Structure fusion with known cameras", lambda: _section_fusion(run)),
+        ("perspective", "Perspective reconstruction", lambda: _section_perspective(run)),
         ("shape", "Recovered 3D shape", lambda: _section_shape(run)),
         ("motion", "Recovered camera motion", lambda: _section_motion(run)),
         ("ground-truth", "Comparison with ground truth", lambda: _section_ground_truth(run)),

@@ -47,6 +47,7 @@ __all__ = [
     "TRIANGULATION_OK",
     "TRIANGULATION_PARALLEL_RAYS",
     "TRIANGULATION_BEHIND_CAMERA",
+    "TRIANGULATION_NOT_OBSERVED",
     "TriangulationResult",
     "triangulate_midpoint",
 ]
@@ -58,6 +59,8 @@ TRIANGULATION_PARALLEL_RAYS = 1
 #: status code: the point was triangulated but lies behind the right camera (alpha <= 0);
 #: the numbers are returned as computed, they are not a physically possible landmark.
 TRIANGULATION_BEHIND_CAMERA = 2
+#: status code: no pair could be formed (the point is not seen in one of the two images).
+TRIANGULATION_NOT_OBSERVED = 3
 
 # Rays whose directions make an angle smaller than this (radians) are treated as parallel.
 _PARALLEL_SINE = 1e-12

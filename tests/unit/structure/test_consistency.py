@@ -62,6 +62,19 @@ def test_task7_batch_is_consistent_at_small_and_large_noise():
     assert large.valid_runs[-1] == 150  # every run has a converged estimate at the end
 
 
+def test_task7_recursive_meets_the_issue_target_over_all_iterations():
+    """Issue 15: per-axis 3σ >= 0.98 and 1σ in [0.60, 0.78] over all iterations at the report's σ/f = 0.02;
+    in its own state (inverse depth) the filter is consistent from the first pair, for every run."""
+    point = task7_consistency("recursive", runs=300, seed=0, pixel_noise_std=10.0)
+    assert np.all(point.pooled_within_3sigma >= 0.98)
+    assert np.all((point.pooled_within_1sigma >= 0.60) & (point.pooled_within_1sigma <= 0.78))
+    state = task7_consistency("recursive", runs=300, seed=0, pixel_noise_std=10.0, space="inverse_depth")
+    assert np.all(state.valid_runs == 300)
+    assert state.consistent_from == 1
+    assert np.all(np.abs(state.pooled_within_1sigma - 0.683) < 0.03)
+    assert np.all(state.pooled_within_3sigma > 0.99)
+
+
 def test_task7_pairs_is_over_confident():
     r = task7_consistency("pairs", runs=150, seed=0, pixel_noise_std=1.0)
     assert not r.passed and r.verdict == "over-confident"
@@ -80,6 +93,9 @@ def test_progress_callback_counts_every_run():
     [
         ({"task": 3}, "task must be 2 or 7"),
         ({"task": 2, "method": "batch"}, "method applies to task 7 only"),
+        ({"task": 7, "method": "batch", "space": "inverse_depth"}, "the recursive filter's state"),
+        ({"task": 7, "method": "recursive", "space": "xyz"}, "space must be one of"),
+        ({"task": 2, "space": "inverse_depth"}, "space applies to task 7 only"),
         ({"task": 7, "method": "ukf"}, "method must be one of"),
         ({"task": 7, "runs": 1}, "runs must be an integer >= 2"),
         ({"task": 7, "seed": -1}, "seed must be a non-negative integer"),

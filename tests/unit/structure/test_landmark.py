@@ -1,4 +1,5 @@
-"""Landmark estimation from a moving camera: exactness, agreement with fuse_recursive, flags, bad input."""
+"""Landmark estimation from a moving camera (Task 7 on the fusion engine): exactness, agreement with
+fuse_recursive, flags, bad input."""
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ def _random_path(seed, K=6, L=8):
     return X, C, b
 
 
-@pytest.mark.parametrize("method", ["pairs", "batch"])
+@pytest.mark.parametrize("method", ["pairs", "batch", "recursive"])
 @pytest.mark.parametrize("seed", range(3))
 def test_noise_free_observations_give_the_truth(method, seed):
     X, C, b = _random_path(seed)
@@ -59,18 +60,16 @@ def test_batch_covariance_shrinks_and_errors_stay_within_bounds_on_the_report_pa
 def test_missing_observations_are_skipped_and_flagged():
     X, C, b = _random_path(5, K=5, L=3)
     obs = project(X, F)
-    obs[1, 0] = np.nan  # landmark 0 unseen in image 1: pairs (0,1) and (1,2) impossible
+    obs[1, 0] = np.nan  # landmark 0 unseen in image 1: its pairs are (0, 2), (2, 3), (3, 4)
     obs[0, 2] = np.nan  # landmark 2 first seen in image 1
-    for method in ("pairs", "batch"):
+    for method in ("pairs", "batch", "recursive"):
         est = estimate_landmarks(obs, C, b, F, 1.0, method=method)
         assert est.measurement_status[1, 0] == TRIANGULATION_NOT_OBSERVED
-        assert est.measurement_status[2, 0] == TRIANGULATION_NOT_OBSERVED
+        np.testing.assert_allclose(est.measurements[2, 0], X[2, 0], rtol=1e-9)  # the pair (0, 2)
+        assert np.isnan(est.estimates[1, 0]).all() and not est.converged[1, 0]
         assert np.isnan(est.estimates[1, 2]).all() and not est.converged[1, 2]
+        np.testing.assert_allclose(est.estimates[2, 0], X[2, 0], rtol=1e-7)  # images 0 and 2
         np.testing.assert_allclose(est.estimates[4], X[4], rtol=1e-7)
-    # batch uses images 0 and 2 of landmark 0 already at image 2, pairs has nothing yet
-    assert np.isnan(estimate_landmarks(obs, C, b, F, 1.0, method="pairs").estimates[2, 0]).all()
-    np.testing.assert_allclose(estimate_landmarks(obs, C, b, F, 1.0, method="batch").estimates[2, 0], X[2, 0],
-                               rtol=1e-7)
 
 
 def test_a_landmark_on_the_baseline_is_nan_and_flagged_not_inf():
@@ -79,7 +78,7 @@ def test_a_landmark_on_the_baseline_is_nan_and_flagged_not_inf():
     C = np.stack([np.eye(3)] * (K - 1))
     b = np.tile([0.0, 0.0, 1.0], (K - 1, 1))
     X = np.stack([np.array([[0.0, 0.0, 30.0 - k], [3.0, 2.0, 30.0 - k]]) for k in range(K)])
-    for method in ("pairs", "batch"):
+    for method in ("pairs", "batch", "recursive"):
         est = estimate_landmarks(project(X, F), C, b, F, 1.0, method=method)
         assert not np.isinf(est.estimates).any() and not np.isinf(est.covariances).any()
         assert not est.converged[:, 0].any() or np.isnan(est.covariances[:, 0]).all()
@@ -94,9 +93,9 @@ def test_a_landmark_on_the_baseline_is_nan_and_flagged_not_inf():
         ({"rotations": np.stack([np.eye(3)] * 3)}, InvalidInputError, r"rotations must have shape \(2, 3, 3\)"),
         ({"translations": np.zeros((2, 3))}, InvalidInputError, "translations\\[0\\] is zero"),
         ({"focal": 0.0}, InvalidInputError, "focal must be finite and > 0"),
-        ({"pixel_std": -1.0}, InvalidInputError, "pixel_std must be > 0"),
-        ({"pixel_std": 0.0}, InvalidInputError, "pixel_std must be > 0"),
-        ({"method": "ekf"}, InvalidInputError, "method must be one of pairs, batch"),
+        ({"pixel_std": -1.0}, InvalidInputError, "pixel_std must be finite and > 0"),
+        ({"pixel_std": 0.0}, InvalidInputError, "pixel_std must be finite and > 0"),
+        ({"method": "ekf"}, InvalidInputError, "method must be one of pairs, batch, recursive"),
     ],
 )
 def test_bad_input_raises_with_a_clear_message(kwargs, error, match):

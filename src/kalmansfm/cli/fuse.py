@@ -1,0 +1,78 @@
+"""``kalmansfm fuse TRACKS --cameras CAMERAS --out DIR``: 3-D points with covariances from known cameras."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..errors import InvalidInputError
+from ..pipeline import run_fuse
+from ..structure.point_fusion import FUSION_METHODS, FusionSettings
+
+_DEFAULTS = FusionSettings()
+
+
+def _pixel_std(text: str) -> float | None:
+    """``auto`` → None (estimate it), else a number > 0 (checked by FusionSettings)."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be 'auto' or a number of pixels; got {text!r}") from None
+
+
+def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
+    p = subparsers.add_parser(
+        "fuse",
+        parents=parents,
+        help="3D points with honest covariances from tracks and known cameras (Kalman fusion, view by view)",
+        description="Fuse every tracked point over the views of known cameras into a 3D position with a "
+        "covariance, as Thomas & Oliensis fuse structure by Kalman filtering: each point starts from its first "
+        "two views and is updated by every further view, and observations that fail the chi-square gate are "
+        "rejected as outliers. TRACKS is the tracker's tracks.csv or tracks.npz, or a CSV frame,track_id,x,y "
+        "(optional status); CAMERAS a CSV frame,p11..p34 (3x4 projection matrices, row-major) or "
+        "frame,fx,fy,cx,cy,skew,r11..r33,t1,t2,t3 (x_cam = R X + t). Writes structure.csv, history.csv, "
+        "rejected.csv, structure.ply, fusion.png and summary.json to DIR.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("tracks", metavar="TRACKS", type=Path, help="tracks.csv, tracks.npz or a frame,track_id,x,y CSV")
+    p.add_argument("--cameras", metavar="CAMERAS", type=Path, required=True, help="the cameras CSV")
+    p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output folder")
+    p.add_argument("--method", choices=FUSION_METHODS, default=_DEFAULTS.method,
+                   help="recursive: the paper's Kalman fusion, view by view; batch: per-point maximum likelihood "
+                   "over all views (the reference); pairs: the report's fusion of consecutive two-view "
+                   "triangulations (over-confident, no outlier test)")
+    p.add_argument("--pixel-std", type=_pixel_std, default="auto", metavar="auto|PX",
+                   help="image noise standard deviation in pixels, or auto: estimated from the residuals "
+                   "(2 degrees of freedom per observation minus 3 per point, after outlier rejection)")
+    p.add_argument("--outlier-prob", type=float, default=_DEFAULTS.outlier_probability, metavar="P",
+                   help="an observation beyond the chi-square quantile of P is rejected (1 turns the test off)")
+    p.add_argument("--chunk-points", type=int, default=_DEFAULTS.chunk_points,
+                   help="points fused together (bounds the memory)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="fuse the chunks on a local Dask cluster of this many processes (default: in this process)")
+    p.add_argument("--scheduler", default=None, help="fuse the chunks on an existing Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("--no-plot", action="store_true", help="do not draw fusion.png")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    pixel_std = None if args.pixel_std == "auto" else args.pixel_std
+    if args.scheduler is not None and args.workers is not None:
+        raise InvalidInputError("give --workers (a local cluster) or --scheduler (an existing one), not both")
+    settings = FusionSettings(args.method, pixel_std, args.outlier_prob, True, args.chunk_points)
+    result = run_fuse(args.tracks, args.cameras, args.out, settings, scheduler=args.scheduler,
+                      n_workers=args.workers, plot=not args.no_plot)
+    f = result.summary.fusion
+    assert f is not None  # run_fuse always records its fusion
+    print(f"views: {f.cameras}  tracks: {f.points}  method: {f.method}")
+    print(f"fused: {f.fused}  too few views: {f.too_few_views}  degenerate: {f.degenerate}  "
+          f"behind camera: {f.behind_camera}")
+    print(f"observations: {f.observations}  rejected as outliers: {f.rejected}")
+    how = "estimated, " + f"{f.degrees_of_freedom} degrees of freedom" if f.pixel_std_estimated else "given"
+    print(f"pixel noise: {f.pixel_std_px:.4g} px ({how})")
+    if f.reprojection_rms_px is not None:
+        print(f"reprojection RMS: {f.reprojection_rms_px:.4g} px  median point uncertainty: {f.median_std:.4g}")
+    print(f"wrote {args.out}")
+    return 0

@@ -1,0 +1,203 @@
+"""Known cameras in and out: the cameras CSV, and tracks matched to its frames.
+
+Two layouts are read, told apart by the header:
+
+* ``frame,p11,p12,p13,p14,p21,...,p34`` — each frame's 3 × 4 projection matrix,
+  row-major, mapping homogeneous world points to pixels (x = column, y = row);
+* ``frame,fx,fy,cx,cy,skew,r11,...,r33,t1,t2,t3`` — intrinsics
+  K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]], rotation R (row-major) and
+  translation t with x_cam = R X + t, so P = K [R | t].
+
+Lines starting with ``#`` are comments; other columns are ignored.  Every problem
+raises :class:`~kalmansfm.InvalidInputError` naming the file and the 1-based line:
+missing columns, a frame given twice, a non-number or non-finite entry, a matrix
+that is not a camera (singular left 3 × 3 block, fx or fy <= 0, R not a rotation).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidInputError, NotEnoughDataError
+from ..structure.pinhole import CameraSet
+from .ground_truth import _number
+from .tracks import _floats, _indices
+
+__all__ = ["MATRIX_COLUMNS", "POSE_COLUMNS", "CameraObservations", "cameras_csv", "match_cameras", "read_cameras"]
+
+#: Header of the projection-matrix layout.
+MATRIX_COLUMNS = ("frame",) + tuple(f"p{i}{j}" for i in range(1, 4) for j in range(1, 5))
+#: Header of the intrinsics + pose layout.
+POSE_COLUMNS = ("frame", "fx", "fy", "cx", "cy", "skew") + tuple(f"r{i}{j}" for i in range(1, 4)
+                                                                 for j in range(1, 4)) + ("t1", "t2", "t3")
+
+# Same limits as CameraSet (a left block this close to singular is not a camera).
+_SINGULAR_RATIO = 1e-12
+_ROTATION_TOLERANCE = 1e-6
+
+
+def _rows(file: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    try:
+        with open(file, newline="", encoding="utf-8-sig") as handle:
+            numbered = [(n, row) for n, row in enumerate(csv.reader(handle), start=1)
+                        if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")]
+    except FileNotFoundError:
+        raise InvalidInputError(f"{file}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InvalidInputError(f"{file}: not a readable text CSV ({exc})") from None
+    if not numbered:
+        raise InvalidInputError(f"{file}: empty file; expected a header {','.join(MATRIX_COLUMNS)} "
+                                f"or {','.join(POSE_COLUMNS)}")
+    header_line, header = numbered[0]
+    header = [h.strip() for h in header]
+    for n, row in numbered[1:]:
+        if len(row) != len(header):
+            raise InvalidInputError(f"{file}: line {n}: {len(row)} fields, the header has {len(header)}")
+    if len(numbered) == 1:
+        raise InvalidInputError(f"{file}: no camera rows after the header (line {header_line})")
+    return header, numbered[1:]
+
+
+def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
+    """Read a cameras CSV (either layout, see the module notes).
+
+    Returns
+    -------
+    CameraSet
+        One camera per row, in the order of the file.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "cameras.csv"
+    >>> header = "frame,fx,fy,cx,cy,skew,r11,r12,r13,r21,r22,r23,r31,r32,r33,t1,t2,t3"
+    >>> _ = f.write_text(header + "\\n4,500,500,320,240,0,1,0,0,0,1,0,0,0,1,0,0,5\\n")
+    >>> cams = read_cameras(f)
+    >>> cams.frames.tolist(), cams.matrices[0, 0].tolist()
+    ([4], [500.0, 0.0, 320.0, 1600.0])
+    """
+    file = Path(path)
+    header, rows = _rows(file)
+    column = {name: i for i, name in enumerate(header)}
+    if all(c in column for c in MATRIX_COLUMNS):
+        layout = MATRIX_COLUMNS
+    elif all(c in column for c in POSE_COLUMNS):
+        layout = POSE_COLUMNS
+    else:
+        missing_p = [c for c in MATRIX_COLUMNS if c not in column]
+        missing_k = [c for c in POSE_COLUMNS if c not in column]
+        closer, missing = ("projection-matrix", missing_p) if len(missing_p) <= len(missing_k) else \
+            ("intrinsics + pose", missing_k)
+        raise InvalidInputError(f"{file}: header lacks column(s) {', '.join(missing)} of the {closer} layout; "
+                                f"got {','.join(header)}")
+    table = np.array([row for _, row in rows], dtype=object)
+    lines = np.array([n for n, _ in rows])
+    frames = _indices(file, table[:, column["frame"]], lines, "frame")
+    values = np.stack([_floats(file, table[:, column[c]], lines, c) for c in layout[1:]], axis=1)
+    _, first, counts = np.unique(frames, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup = frames[first[counts > 1][0]]
+        where = lines[frames == dup]
+        raise InvalidInputError(f"{file}: lines {where[0]} and {where[1]}: frame {dup} has two cameras")
+    if layout is MATRIX_COLUMNS:
+        P = values.reshape(-1, 3, 4)
+    else:
+        fx, fy, cx, cy, skew = values[:, :5].T
+        bad = ~((fx > 0) & (fy > 0))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InvalidInputError(f"{file}: line {lines[i]}: fx and fy must be > 0 (pixels); got {fx[i]}, {fy[i]}")
+        K = np.zeros((len(frames), 3, 3))
+        K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2], K[:, 2, 2] = fx, skew, cx, fy, cy, 1.0
+        R = values[:, 5:14].reshape(-1, 3, 3)
+        off = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+        bad = ~(off <= _ROTATION_TOLERANCE)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InvalidInputError(f"{file}: line {lines[i]}: r11..r33 is not a rotation (R Rᵀ differs from I "
+                                    f"by {off[i]:.3g})")
+        P = K @ np.concatenate([R, values[:, 14:17, None]], axis=2)
+    sv = np.linalg.svd(P[:, :, :3], compute_uv=False)
+    singular = ~(sv[:, -1] > _SINGULAR_RATIO * sv[:, 0])
+    if singular.any():
+        i = int(np.argmax(singular))
+        raise InvalidInputError(f"{file}: line {lines[i]}: frame {frames[i]}: not a camera, the left 3x3 block of "
+                                f"its projection matrix is not invertible")
+    return CameraSet(P, frames)
+
+
+def cameras_csv(cameras: CameraSet) -> str:
+    """The cameras as CSV text in the projection-matrix layout (shortest text that reads back exactly).
+
+    Examples
+    --------
+    >>> print(cameras_csv(CameraSet.from_matrices(np.eye(3, 4)[None], frames=[2])).splitlines()[1])
+    2,1.0,0.0,0.0,0.0,0.0,1.0,0.0,0.0,0.0,0.0,1.0,0.0
+    """
+    lines = [",".join(MATRIX_COLUMNS)]
+    for frame, P in zip(cameras.frames, cameras.matrices):
+        lines.append(",".join([str(int(frame))] + [_number(x) for x in P.ravel()]))
+    return "\n".join(lines) + "\n"
+
+
+@dataclass(frozen=True)
+class CameraObservations:
+    """Track positions arranged by camera: the input of :func:`~kalmansfm.structure.point_fusion.fuse`.
+
+    Attributes
+    ----------
+    cameras : CameraSet — the cameras of the frames that have observations, in frame order.
+    observations : (V, N, 2) — track positions in those frames, NaN where not observed.
+    track_ids : (N,) — the track of each column.
+    frames_without_camera : (k,) int — frames with observations but no camera (skipped).
+    """
+
+    cameras: CameraSet
+    observations: np.ndarray
+    track_ids: np.ndarray
+    frames_without_camera: np.ndarray
+
+
+def match_cameras(positions: np.ndarray, frames: np.ndarray, track_ids: np.ndarray,
+                  cameras: CameraSet, source: str = "the tracks") -> CameraObservations:
+    """Keep the frames that have a camera, in frame order, and drop frames without one.
+
+    Parameters
+    ----------
+    positions : (F, N, 2) — observed positions, NaN where none (e.g. :class:`~.track_table.TrackPositions`).
+    frames : (F,) int — frame number of each row of ``positions``.
+    track_ids : (N,) int.
+    cameras : CameraSet.
+    source : how the tracks are named in the error message (e.g. their file).
+
+    Raises
+    ------
+    NotEnoughDataError
+        Fewer than 2 frames of the tracks have a camera.
+
+    Examples
+    --------
+    >>> cams = CameraSet.from_matrices(np.stack([np.eye(3, 4)] * 2), frames=[0, 2])
+    >>> m = match_cameras(np.zeros((3, 1, 2)), np.array([0, 1, 2]), np.array([5]), cams)
+    >>> m.cameras.frames.tolist(), m.frames_without_camera.tolist()
+    ([0, 2], [1])
+    """
+    view = cameras.view_of(frames)
+    observed = np.isfinite(positions).all(axis=2).any(axis=1)
+    missing = np.asarray(frames)[(view < 0) & observed]
+    keep = np.flatnonzero(view >= 0)
+    if keep.size < 2:
+        raise NotEnoughDataError(f"{source}: {keep.size} of its {len(frames)} frame(s) have a camera; "
+                                 f"fusing needs >= 2 (camera frames: {_frame_list(cameras.frames)})")
+    order = keep[np.argsort(np.asarray(frames)[keep], kind="stable")]
+    return CameraObservations(cameras.subset(view[order]), positions[order], np.asarray(track_ids), missing)
+
+
+def _frame_list(frames: np.ndarray, shown: int = 6) -> str:
+    head = ", ".join(str(int(f)) for f in frames[:shown])
+    return head + (f", ... ({len(frames)} in all)" if len(frames) > shown else "")

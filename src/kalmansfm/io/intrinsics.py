@@ -1,0 +1,122 @@
+"""Camera intrinsics in and out: ``K.csv`` for calibrated reconstruction, and the ``--focal`` shortcut.
+
+``K.csv`` has the header ``frame,fx,fy,cx,cy,skew`` and either one row, used
+for every frame (its frame value is then ignored), or one row per frame; every
+frame of the tracks must have one.  K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]
+in pixels, x = column and y = row.  Every problem raises :class:`~kalmansfm.InvalidInputError` naming the file and
+the 1-based line.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .._validation import check_positive
+from ..errors import InvalidInputError
+from .ground_truth import _number
+from .tracks import _floats, _indices, _read_csv_rows
+
+__all__ = ["INTRINSICS_COLUMNS", "intrinsics_csv", "intrinsics_from_focal", "read_intrinsics"]
+
+#: Header of ``K.csv``.
+INTRINSICS_COLUMNS = ("frame", "fx", "fy", "cx", "cy", "skew")
+
+
+def _matrices(fx: np.ndarray, fy: np.ndarray, cx: np.ndarray, cy: np.ndarray, skew: np.ndarray) -> np.ndarray:
+    K = np.zeros((len(fx), 3, 3))
+    K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2], K[:, 2, 2] = fx, skew, cx, fy, cy, 1.0
+    return K
+
+
+def read_intrinsics(path: str | os.PathLike[str], frames: object) -> np.ndarray:
+    """K of each of the given frames from ``K.csv``.
+
+    Parameters
+    ----------
+    path : the CSV (see the module notes).
+    frames : (F,) int — the frame numbers that need a K (e.g. the tracks' frames).
+
+    Returns
+    -------
+    (F, 3, 3) float64, in the order of ``frames``.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "K.csv"
+    >>> _ = f.write_text("frame,fx,fy,cx,cy,skew\\n0,800,810,320,240,0\\n")
+    >>> read_intrinsics(f, [3, 4])[1].tolist()
+    [[800.0, 0.0, 320.0], [0.0, 810.0, 240.0], [0.0, 0.0, 1.0]]
+    >>> _ = f.write_text("frame,fx,fy,cx,cy,skew\\n0,800,800,320,240,0\\n1,800,800,320,240,0\\n")
+    >>> read_intrinsics(f, [0, 2])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: ... no intrinsics for frame 2 (K.csv has frames 0-1; give one row for all frames or one per frame)
+    """
+    file = Path(path)
+    rows = _read_csv_rows(file, INTRINSICS_COLUMNS)
+    if not rows:
+        raise InvalidInputError(f"{file}: no intrinsics rows after the header {','.join(INTRINSICS_COLUMNS)}")
+    lines = np.array([n for n, _ in rows])
+    column = {c: np.array([r[c] for _, r in rows], dtype=object) for c in INTRINSICS_COLUMNS}
+    fx, fy, cx, cy, skew = (_floats(file, column[c], lines, c) for c in INTRINSICS_COLUMNS[1:])
+    bad = ~((fx > 0) & (fy > 0))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InvalidInputError(f"{file}: line {lines[i]}: fx and fy must be > 0 (pixels; K would be singular); "
+                                f"got {fx[i]}, {fy[i]}")
+    K = _matrices(fx, fy, cx, cy, skew)
+    wanted = np.asarray(frames, dtype=np.int64).ravel()
+    if len(rows) == 1:
+        return np.repeat(K, len(wanted), axis=0)
+    given = _indices(file, column["frame"], lines, "frame")
+    order = np.argsort(given, kind="stable")
+    sorted_frames = given[order]
+    twice = np.flatnonzero(np.diff(sorted_frames) == 0)
+    if twice.size:
+        dup = sorted_frames[twice[0]]
+        where = lines[given == dup]
+        raise InvalidInputError(f"{file}: lines {where[0]} and {where[1]}: frame {dup} has two rows")
+    pos = np.clip(np.searchsorted(sorted_frames, wanted), 0, len(given) - 1)
+    found = sorted_frames[pos] == wanted
+    if not found.all():
+        missing = wanted[~found][0]
+        raise InvalidInputError(f"{file}: no intrinsics for frame {missing} ({file.name} has frames {given.min()}-"
+                                f"{given.max()}; give one row for all frames or one per frame)")
+    return K[order[pos]]
+
+
+def intrinsics_from_focal(focal: float, image_size: tuple[int, int], n_frames: int) -> np.ndarray:
+    """K = [[f, 0, W/2], [0, f, H/2], [0, 0, 1]] for every frame: square pixels, principal point at the centre.
+
+    Examples
+    --------
+    >>> intrinsics_from_focal(700.0, (640, 480), 2)[0].tolist()
+    [[700.0, 0.0, 320.0], [0.0, 700.0, 240.0], [0.0, 0.0, 1.0]]
+    """
+    f = check_positive("focal", focal, "pixels")
+    width, height = (check_positive("image width", image_size[0], "pixels"),
+                     check_positive("image height", image_size[1], "pixels"))
+    one = np.ones(1)
+    return np.repeat(_matrices(f * one, f * one, width / 2 * one, height / 2 * one, 0 * one), n_frames, axis=0)
+
+
+def intrinsics_csv(frames: object, intrinsics: np.ndarray) -> str:
+    """``K.csv`` text, one row per frame (reads back exactly with :func:`read_intrinsics`).
+
+    Examples
+    --------
+    >>> print(intrinsics_csv([5], np.array([[[800.0, 0.5, 320.0], [0, 790.0, 240.0], [0, 0, 1]]])))
+    frame,fx,fy,cx,cy,skew
+    5,800.0,790.0,320.0,240.0,0.5
+    <BLANKLINE>
+    """
+    K = np.asarray(intrinsics, dtype=np.float64)
+    lines = [",".join(INTRINSICS_COLUMNS)]
+    for frame, k in zip(np.asarray(frames).ravel(), K):
+        values = (k[0, 0], k[1, 1], k[0, 2], k[1, 2], k[0, 1])
+        lines.append(",".join([str(int(frame))] + [_number(v) for v in values]))
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,248 @@
+"""Settings, result and status types of calibrated reconstruction (:mod:`.perspective`).
+
+Shared by the batch method (:mod:`.incremental`) and the recursive one
+(:mod:`.recursive`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+from scipy import stats
+
+from ..errors import InvalidInputError, NotEnoughDataError
+from .._validation import as_float_array, check_count, check_positive
+
+__all__ = [
+    "COVARIANCE_GAUGE",
+    "DEFAULT_OUTLIER_THRESHOLD_PX",
+    "PERSPECTIVE_METHODS",
+    "FrameStatus",
+    "PerspectiveReconstruction",
+    "PerspectiveSettings",
+    "ReconstructedPointStatus",
+    "validate_tracks_and_intrinsics",
+]
+
+#: how the point covariances are to be read (written into summary.json and the PLY header).
+COVARIANCE_GAUGE = ("free-network gauge: the covariance of each point after a least-squares similarity "
+                    "alignment (translation, rotation, scale) of all reconstructed points onto any reference")
+#: the methods of :func:`reconstruct_perspective`.
+PERSPECTIVE_METHODS = ("batch", "recursive")
+#: an observation farther than this from where the other views put its point is an outlier (pixels).
+DEFAULT_OUTLIER_THRESHOLD_PX = 4.0
+
+
+
+class ReconstructedPointStatus(IntEnum):
+    """Outcome for one track; its ``label`` is the word written to files."""
+
+    RECONSTRUCTED = 0  #: a 3-D point with a covariance
+    TOO_FEW_VIEWS = 1  #: fewer than 2 consistent observations in registered frames
+    DEGENERATE = 2  #: its rays are (nearly) parallel: depth undetermined
+
+    @property
+    def label(self) -> str:
+        """``reconstructed``, ``too_few_views`` or ``degenerate``."""
+        return self.name.lower()
+
+
+class FrameStatus(IntEnum):
+    """Outcome for one frame; its ``label`` is the word written to files."""
+
+    REGISTERED = 0  #: the frame has a pose
+    NOT_CONNECTED = 1  #: it shares too few tracks with the reconstructed points
+    POSE_FAILED = 2  #: no consistent pose from the points it shares
+
+    @property
+    def label(self) -> str:
+        """``registered``, ``not_connected`` or ``pose_failed``."""
+        return self.name.lower()
+
+
+@dataclass(frozen=True)
+class PerspectiveSettings:
+    """How :func:`reconstruct_perspective` runs; validated on construction.
+
+    Attributes
+    ----------
+    method : ``"batch"`` (bundle adjustment) or ``"recursive"`` (the report's
+        relative orientations and recursive fusion).
+    outlier_threshold_px : an observation whose leave-one-out residual exceeds this
+        (and the χ² bound below) is an outlier; also the RANSAC inlier threshold.
+    outlier_probability : in (0, 1); the χ²(2) quantile of this probability, times
+        the estimated σ², is the other bound.
+    min_triangulation_angle_deg : a track whose rays span less than this angle is
+        ``degenerate``.
+    min_pair_angle_deg : the initial pair's median triangulation angle must reach this.
+    min_registration_points : a frame is registered only with at least this many
+        PnP inliers (and a pair needs twice as many shared inliers).
+    max_initial_pairs : frame pairs tried as the initial pair.
+    seed : seed of the RANSAC random generator (OpenCV's), for reproducible runs.
+    """
+
+    method: str = "batch"
+    outlier_threshold_px: float = DEFAULT_OUTLIER_THRESHOLD_PX
+    outlier_probability: float = 0.999
+    min_triangulation_angle_deg: float = 1.0
+    min_pair_angle_deg: float = 2.0
+    min_registration_points: int = 12
+    max_initial_pairs: int = 40
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.method not in PERSPECTIVE_METHODS:
+            raise InvalidInputError(f"method must be one of {', '.join(PERSPECTIVE_METHODS)}; got {self.method!r}")
+        object.__setattr__(self, "outlier_threshold_px",
+                           check_positive("outlier_threshold_px", self.outlier_threshold_px, "pixels"))
+        p = check_positive("outlier_probability", self.outlier_probability)
+        if not p < 1.0:
+            raise InvalidInputError(f"outlier_probability must be in (0, 1); got {p}")
+        object.__setattr__(self, "outlier_probability", p)
+        for name in ("min_triangulation_angle_deg", "min_pair_angle_deg"):
+            object.__setattr__(self, name, check_positive(name, getattr(self, name), "degrees"))
+        object.__setattr__(self, "min_registration_points",
+                           check_count("min_registration_points", self.min_registration_points, 6))
+        object.__setattr__(self, "max_initial_pairs", check_count("max_initial_pairs", self.max_initial_pairs, 1))
+        object.__setattr__(self, "seed", check_count("seed", self.seed, 0))
+
+    @property
+    def chi2_bound(self) -> float:
+        """χ²(2) quantile of ``outlier_probability``."""
+        return float(stats.chi2.ppf(self.outlier_probability, 2))
+
+
+@dataclass(frozen=True)
+class PerspectiveReconstruction:
+    """Cameras and points recovered from tracks, with covariances in the free-network gauge.
+
+    The world frame is that of the first camera of the initial pair, scaled so
+    that the initial pair's centres are 1 apart.  x_cam = R X + t.
+
+    Attributes
+    ----------
+    method : ``"batch"`` or ``"recursive"``.
+    points : (P, 3) — NaN where the status is not RECONSTRUCTED.
+    point_covariances : (P, 3, 3) — covariance of each point after a least-squares
+        similarity alignment of all points onto a reference (the free-network
+        gauge); NaN where not reconstructed.
+    point_status : (P,) int8 — :class:`ReconstructedPointStatus` values.
+    views : (P,) int — inlier observations of each point.
+    rotations : (F, 3, 3) — NaN for unregistered frames.
+    translations : (F, 3) — NaN for unregistered frames.
+    camera_covariances : (F, 6, 6) — covariance of (δω, δC), the small rotation of the
+        camera frame (R_true = exp([δω]×) R) and the centre, in the same gauge; NaN
+        for unregistered frames.
+    frame_status : (F,) int8 — :class:`FrameStatus` values.
+    inliers : (F, P) bool — observations used in the final estimate.
+    point_reprojection_rms : (P,) — RMS length of each point's reprojection errors over its
+        inliers (pixels); NaN where not reconstructed.
+    pixel_std : σ of the image noise estimated from the inlier residuals (pixels).
+    reprojection_rms : RMS length of the 2-D reprojection error over the inliers (pixels).
+    degrees_of_freedom : 2 × inliers − 6 × cameras − 3 × points + 7.
+    initial_pair : the two frames the reconstruction started from.
+    warnings : things the user should know (unregistered frames, weak geometry, …).
+    timings : seconds spent per stage.
+    """
+
+    method: str
+    points: np.ndarray
+    point_covariances: np.ndarray
+    point_status: np.ndarray
+    views: np.ndarray
+    rotations: np.ndarray
+    translations: np.ndarray
+    camera_covariances: np.ndarray
+    frame_status: np.ndarray
+    inliers: np.ndarray
+    point_reprojection_rms: np.ndarray
+    pixel_std: float
+    reprojection_rms: float
+    degrees_of_freedom: int
+    initial_pair: tuple[int, int]
+    warnings: tuple[str, ...] = ()
+    timings: dict[str, float] = field(default_factory=dict, compare=False)
+
+    @property
+    def registered(self) -> np.ndarray:
+        """(F,) bool — frames with a pose."""
+        return self.frame_status == FrameStatus.REGISTERED
+
+    @property
+    def reconstructed(self) -> np.ndarray:
+        """(P,) bool — tracks with a 3-D point."""
+        return self.point_status == ReconstructedPointStatus.RECONSTRUCTED
+
+    @property
+    def centres(self) -> np.ndarray:
+        """(F, 3) camera centres -Rᵀ t (NaN for unregistered frames)."""
+        return -np.einsum("fji,fj->fi", self.rotations, self.translations)
+
+
+def validate_tracks_and_intrinsics(observations: object, intrinsics: object) -> tuple[np.ndarray, np.ndarray]:
+    """Check (F, P, 2) tracks and (3, 3) or (F, 3, 3) intrinsics; return them as float arrays, K per frame.
+
+    Examples
+    --------
+    >>> obs, K = validate_tracks_and_intrinsics(np.zeros((2, 5, 2)), np.eye(3))
+    >>> K.shape
+    (2, 3, 3)
+    >>> validate_tracks_and_intrinsics(np.zeros((2, 5, 2)), np.diag([1.0, 0.0, 1.0]))
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: intrinsics of frame 0 must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 (a singular or malformed K); got [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    obs = as_float_array("observations", observations)
+    if obs.ndim != 3 or obs.shape[2] != 2:
+        raise InvalidInputError(f"observations must have shape (frames, points, 2) as (x, y); got {obs.shape}")
+    F, P, _ = obs.shape
+    if F < 2:
+        raise NotEnoughDataError(f"a reconstruction needs >= 2 frames; got {F}")
+    partial = np.isnan(obs).any(axis=2) & ~np.isnan(obs).all(axis=2)
+    if partial.any() or np.isinf(obs).any():
+        f, p = np.argwhere(partial | np.isinf(obs).any(axis=2))[0]
+        raise InvalidInputError(f"observations must be finite (x, y) or NaN in both; frame {f}, point {p} "
+                                f"is {obs[f, p].tolist()}")
+    K = as_float_array("intrinsics", intrinsics)
+    if K.shape == (3, 3):
+        K = np.repeat(K[None], F, axis=0)
+    if K.shape != (F, 3, 3):
+        raise InvalidInputError(f"intrinsics must have shape (3, 3) or ({F}, 3, 3), one K per frame; got {K.shape}")
+    missing = ~np.isfinite(K).all(axis=(1, 2))
+    if missing.any():
+        raise InvalidInputError(f"intrinsics missing (not finite) for frame {int(np.flatnonzero(missing)[0])}")
+    lower = np.abs(K[:, [1, 2, 2], [0, 0, 1]]).max(axis=1) > 0
+    diag = K[:, [0, 1], [0, 1]]
+    bad = lower | (diag <= 0).any(axis=1) | (K[:, 2, 2] != 1.0)
+    if bad.any():
+        f = int(np.flatnonzero(bad)[0])
+        raise InvalidInputError(f"intrinsics of frame {f} must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 "
+                                f"(a singular or malformed K); got {K[f].tolist()}")
+    return obs, K
+
+
+def residual_rms_per_point(observations: np.ndarray, intrinsics: np.ndarray, rotations: np.ndarray,
+                           translations: np.ndarray, points: np.ndarray, inliers: np.ndarray) -> np.ndarray:
+    """(P,) RMS reprojection error length of each point over its inlier observations (NaN without any)."""
+    frames, tracks = np.nonzero(inliers)
+    x_cam = np.einsum("nij,nj->ni", rotations[frames], points[tracks]) + translations[frames]
+    pix = np.einsum("nij,nj->ni", intrinsics[frames], x_cam)
+    sq = np.sum((pix[:, :2] / pix[:, 2:] - observations[frames, tracks]) ** 2, axis=1)
+    count = np.bincount(tracks, minlength=points.shape[0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.bincount(tracks, weights=sq, minlength=points.shape[0]) / count)
+
+
+def frame_runs(frames: np.ndarray) -> str:
+    """Frame numbers as runs, e.g. ``0-4, 7, 9-12``.
+
+    Examples
+    --------
+    >>> frame_runs(np.array([0, 1, 2, 4, 6, 7]))
+    '0-2, 4, 6-7'
+    """
+    frames = np.asarray(frames)
+    runs = np.split(frames, np.flatnonzero(np.diff(frames) > 1) + 1)
+    return ", ".join(f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs if len(r))

@@ -1,0 +1,166 @@
+"""Structure fusion with known cameras: consistency on scenes with truth, outliers, statuses, kernels, chunks."""
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import kalmansfm.structure.point_fusion as pf
+from kalmansfm.errors import InvalidInputError, NotEnoughDataError
+from kalmansfm.scenes.known_cameras import known_camera_scene
+from kalmansfm.structure.pinhole import CameraSet, PointStatus, project_points
+from kalmansfm.structure.point_fusion import FusionSettings, fuse
+
+
+def nees(errors, covariances):
+    return np.einsum("ni,ni->n", errors, np.linalg.solve(covariances, errors[..., None])[..., 0])
+
+
+@pytest.fixture(scope="module")
+def outlier_scene():
+    return known_camera_scene(points=3000, views=10, pixel_std=0.7, outlier_fraction=0.05, visibility=0.6, seed=3)
+
+
+@pytest.fixture(scope="module")
+def fused(outlier_scene):
+    return {m: fuse(outlier_scene.observations, outlier_scene.cameras, method=m, history=True)
+            for m in ("recursive", "batch")}
+
+
+@pytest.mark.parametrize("method", ["recursive", "batch"])
+def test_covariances_are_honest_and_outliers_found_on_a_scene_with_planted_mismatches(outlier_scene, fused, method):
+    s, f = outlier_scene, fused[method]
+    ok = f.fused
+    assert ok.mean() > 0.99
+    # auto σ, counted with the degrees of freedom after rejection, finds the true noise
+    assert f.pixel_std_estimated and abs(f.pixel_std / s.pixel_std - 1) < 0.03
+    e = f.points[ok] - s.points[ok]
+    n = nees(e, f.covariances[ok])
+    assert abs(np.median(n) - stats.chi2.median(3)) < 0.2
+    z = np.abs(e) / np.sqrt(np.diagonal(f.covariances[ok], axis1=1, axis2=2))
+    assert np.all(np.abs((z <= 1).mean(axis=0) - 0.683) < 0.03)
+    assert np.all((z <= 3).mean(axis=0) > 0.99)
+    # the two-view (first) estimates are honest too
+    first = f.history.first()
+    good = np.isfinite(first.estimates).all(axis=1)
+    n2 = nees(first.estimates[good] - s.points[first.points[good]], first.covariances[good])
+    assert abs(np.median(n2) - stats.chi2.median(3)) < 0.25
+    # outliers: recall and false rejections
+    observed = np.isfinite(s.observations[..., 0])
+    recall = (f.rejected & s.outliers).sum() / s.outliers.sum()
+    false = (f.rejected & ~s.outliers).sum() / (observed & ~s.outliers).sum()
+    assert recall > 0.99
+    assert false < 0.005
+    # views counts the accepted observations
+    np.testing.assert_array_equal(f.views, (observed & ~f.rejected).sum(axis=0) * ok)
+
+
+def test_recursive_and_batch_agree_within_a_small_fraction_of_the_uncertainty(fused):
+    a, b = fused["recursive"], fused["batch"]
+    both = a.fused & b.fused & (a.rejected == b.rejected).all(axis=0)
+    assert both.mean() > 0.98
+    d = a.points[both] - b.points[both]
+    n = nees(d, b.covariances[both])
+    assert np.median(n) < 1e-3
+    assert np.quantile(n, 0.99) < 0.05
+
+
+def test_pairs_is_the_reports_scheme_and_is_over_confident():
+    s = known_camera_scene(points=2000, views=10, pixel_std=0.5, seed=4)
+    f = fuse(s.observations, s.cameras, method="pairs", pixel_std=0.5)
+    assert f.fused.all() and not f.rejected.any()
+    n = nees(f.points - s.points, f.covariances)
+    assert n.mean() > 4  # consecutive pairs share images, counted twice (a consistent mean is 3 ± 0.1 here)
+
+
+def test_compiled_kernel_matches_the_numpy_reference(monkeypatch):
+    s = known_camera_scene(points=1500, views=9, pixel_std=0.5, outlier_fraction=0.1, visibility=0.6, seed=5)
+    compiled = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
+    monkeypatch.setattr(pf, "_RECURSIVE_STATES", pf._recursive_states_numpy)
+    reference = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
+    np.testing.assert_array_equal(compiled.status, reference.status)
+    np.testing.assert_array_equal(compiled.rejected, reference.rejected)
+    np.testing.assert_array_equal(compiled.views, reference.views)
+    scale = np.sqrt(np.diagonal(reference.covariances, axis1=1, axis2=2))
+    assert np.nanmax(np.abs(compiled.points - reference.points) / scale) < 1e-6
+    np.testing.assert_allclose(compiled.covariances, reference.covariances, rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(compiled.history.views, reference.history.views)
+    np.testing.assert_array_equal(compiled.history.points, reference.history.points)
+    np.testing.assert_allclose(compiled.history.estimates, reference.history.estimates, rtol=0, atol=1e-7)
+
+
+@pytest.mark.parametrize("method", ["recursive", "batch", "pairs"])
+def test_chunks_and_an_executor_give_the_same_result(method):
+    s = known_camera_scene(points=300, views=6, pixel_std=0.5, outlier_fraction=0.05, visibility=0.7, seed=6)
+    whole = fuse(s.observations, s.cameras, method=method, history=True)
+    with ThreadPoolExecutor(2) as pool:
+        parts = fuse(s.observations, s.cameras, method=method, history=True, chunk_points=70, executor=pool)
+    np.testing.assert_array_equal(whole.status, parts.status)
+    np.testing.assert_array_equal(whole.rejected, parts.rejected)
+    np.testing.assert_allclose(whole.points, parts.points, rtol=1e-12)
+    assert whole.pixel_std == pytest.approx(parts.pixel_std, rel=1e-12)
+    np.testing.assert_array_equal(whole.history.points, parts.history.points)
+
+
+def test_history_ends_at_the_final_estimate_and_grows_more_certain():
+    s = known_camera_scene(points=200, views=8, pixel_std=0.5, seed=7)
+    f = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
+    X, C = f.history.dense(8, 200)
+    assert np.isnan(X[0]).all()  # one view gives no estimate
+    np.testing.assert_allclose(X[-1], f.points, rtol=1e-12)
+    np.testing.assert_allclose(C[-1], f.covariances, rtol=1e-12)
+    trace = np.trace(C[1:], axis1=2, axis2=3)  # NaN after a view whose observation was rejected
+    step = np.diff(trace, axis=0)
+    assert np.isfinite(step).mean() > 0.95
+    assert np.all(step[np.isfinite(step)] < 0)  # every accepted view adds information
+
+
+def test_statuses_behind_every_camera_one_view_and_no_baseline():
+    K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    R = np.stack([np.eye(3)] * 3)
+    cams = CameraSet.from_pose(K, R, [[0.0, 0, 0], [-0.5, 0, 0], [-1.0, 0, 0]])
+    X = np.array([[0.1, 0.2, 5.0], [0.3, -0.2, 6.0], [-0.2, 0.1, 4.0], [0.0, 0.1, -5.0], [0.2, 0.0, 5.0]])
+    obs = project_points(cams, X).pixels + np.random.default_rng(0).normal(scale=0.3, size=(3, 5, 2))
+    obs[1:, 2] = np.nan  # seen once
+    f = fuse(obs, cams, pixel_std=0.3)
+    labels = [PointStatus(s).label for s in f.status]
+    assert labels == ["fused", "fused", "too_few_views", "behind_camera", "fused"]
+    assert np.isnan(f.points[2:4]).all() and np.isnan(f.covariances[3]).all()
+    # every camera at the same centre: no parallax, no depth
+    same = CameraSet.from_pose(K, np.stack([np.eye(3)] * 3), np.zeros((3, 3)))
+    o = project_points(same, X[:3]).pixels
+    for method in ("recursive", "batch", "pairs"):
+        g = fuse(o, same, method=method, pixel_std=0.3)
+        assert np.all(g.status == PointStatus.DEGENERATE), method
+
+
+def test_mirrored_reconstruction_is_fused_in_its_own_frame():
+    s = known_camera_scene(points=100, views=5, pixel_std=0.5, seed=8)
+    mirror = np.diag([1.0, -1.0, 1.0, 1.0])  # a reflected world gives the same images
+    cams = CameraSet.from_matrices(s.cameras.matrices @ mirror)
+    for method in ("recursive", "batch", "pairs"):
+        f = fuse(s.observations, cams, method=method, pixel_std=0.5)
+        assert f.orientation == -1 and f.fused.all(), method
+        n = nees(f.points - s.points * [1, -1, 1], f.covariances)
+        assert 2 < n.mean() < (4 if method != "pairs" else 40), method
+
+
+def test_bad_arguments_raise_one_clear_error():
+    s = known_camera_scene(points=10, views=3, seed=9)
+    with pytest.raises(InvalidInputError, match="method must be one of"):
+        fuse(s.observations, s.cameras, method="kalman")
+    with pytest.raises(InvalidInputError, match="pixel_std must be a number"):
+        fuse(s.observations, s.cameras, pixel_std="guess")
+    with pytest.raises(InvalidInputError, match="outlier_probability must be in"):
+        fuse(s.observations, s.cameras, outlier_probability=1.5)
+    with pytest.raises(InvalidInputError, match=r"observations must have shape \(3 views"):
+        fuse(s.observations[:2], s.cameras)
+    with pytest.raises(NotEnoughDataError, match=">= 2 cameras"):
+        fuse(s.observations[:1], s.cameras.subset([0]))
+    once = s.observations.copy()
+    once[1:] = np.nan  # every point seen once: nothing to estimate σ from
+    with pytest.raises(NotEnoughDataError, match="pixel_std='auto' needs"):
+        fuse(once, s.cameras)
+    with pytest.raises(InvalidInputError, match="chunk_points"):
+        FusionSettings(chunk_points=0)
