@@ -592,9 +592,12 @@ class Tracker:
         innovation_sq = np.sum((m.positions - predicted) ** 2, axis=1)
         # A keyframe: the anchor is renewed at the measurement after anchor_patience accepted
         # frames in a row that it did not measure (its appearance has changed for good), and at
-        # once when it matches below the re-acquisition level (it could no longer find the point again).
+        # once when it matches below the re-acquisition level (it could no longer find the point
+        # again) — on the first such frame whose measurement is clean, so that a keyframe is never
+        # cut at a doubtful match (the passing edge of an occluder, a chain that just slipped).
         strikes = np.where(good & ~m.anchored, rows.strikes + 1, np.where(good, 0, rows.strikes))
-        renew = np.flatnonzero(good & ((strikes >= self.settings.anchor_patience) | ~(m.anchor_ncc >= self.settings.reacquire_ncc)))
+        due = (strikes >= self.settings.anchor_patience) | ~(m.anchor_ncc >= self.settings.reacquire_ncc)
+        renew = np.flatnonzero(good & m.keyframe_ok & due)
         anchors, anchor_cov = rows.anchors, rows.anchor_cov
         if len(renew):
             anchors = anchors.replace(renew, m.patches[renew])  # type: ignore[union-attr]
