@@ -134,7 +134,7 @@ class DifferentialFrame:
         return prepare_frame(self.image, self.window, self.search_radius)
 
     @cached_property
-    def _padded(self) -> PreparedFrame:
+    def padded_frame(self) -> PreparedFrame:
         # A thin border for sampling patches when no search was needed this frame; the
         # box sums of a PreparedFrame are not used by sampling (left empty).
         if "prepared" in self.__dict__:
@@ -145,7 +145,7 @@ class DifferentialFrame:
 
     def patches(self, centers: np.ndarray, size: int | None = None) -> np.ndarray:
         """Bilinear ``size``×``size`` patches (default: the anchor window) at sub-pixel centres (x, y)."""
-        return sample_patches(self._padded, centers, self.window if size is None else size, np.float32)
+        return sample_patches(self.padded_frame, centers, self.window if size is None else size, np.float32)
 
 
 def prepare_differential_frame(frame: np.ndarray, window: int, search_radius: int = 40, grey_scale: float = 1.0) -> DifferentialFrame:
@@ -290,19 +290,11 @@ def _compare(terms: _TemplateTerms, patches: np.ndarray) -> _Fit:
     return _Fit(ncc, sigma_sq, step, covariance)
 
 
-def _take_terms(terms: _TemplateTerms, index: np.ndarray) -> _TemplateTerms:
-    return _TemplateTerms(*(getattr(terms, f.name)[index] for f in fields(_TemplateTerms)))
-
-
-def _concatenate_terms(first: _TemplateTerms, second: _TemplateTerms) -> _TemplateTerms:
-    return _TemplateTerms(*(np.concatenate([getattr(first, f.name), getattr(second, f.name)]) for f in fields(_TemplateTerms)))
-
-
 class AnchorTemplates:
-    """Anchor templates with their alignment terms (gradients, H⁻¹), computed once per template.
+    """The tracks' anchor templates, one row per track (kept by the tracker between frames).
 
-    Anchors change only when a track starts or its anchor is renewed, so the terms are
-    kept and computed again only for the rows that change.
+    The alignment computes a template's terms (gradients, structure tensor) as it goes;
+    :attr:`terms` computes them for the NumPy reference on first use.
 
     Parameters
     ----------
@@ -316,32 +308,31 @@ class AnchorTemplates:
     (3, [25.0, 0.0, 25.0])
     """
 
-    def __init__(self, templates: np.ndarray, _terms: _TemplateTerms | None = None) -> None:
-        self.templates = np.asarray(templates, dtype=np.float32)
-        self.terms = _template_terms(self.templates) if _terms is None else _terms
+    def __init__(self, templates: np.ndarray) -> None:
+        self.templates = np.ascontiguousarray(templates, dtype=np.float32)
 
     def __len__(self) -> int:
         return len(self.templates)
 
+    @cached_property
+    def terms(self) -> _TemplateTerms:
+        """What Gauss–Newton needs of each template (the NumPy reference's form)."""
+        return _template_terms(self.templates)
+
     def take(self, index: np.ndarray) -> AnchorTemplates:
         """The anchors at ``index`` (indices or a boolean mask)."""
-        return AnchorTemplates(self.templates[index], _take_terms(self.terms, index))
+        return AnchorTemplates(self.templates[index])
 
     def append(self, templates: np.ndarray) -> AnchorTemplates:
         """These anchors followed by ``templates``."""
-        new = AnchorTemplates(np.asarray(templates, dtype=np.float32).reshape(-1, *self.templates.shape[1:]))
-        return AnchorTemplates(np.concatenate([self.templates, new.templates]), _concatenate_terms(self.terms, new.terms))
+        new = np.asarray(templates, dtype=np.float32).reshape(-1, *self.templates.shape[1:])
+        return AnchorTemplates(np.concatenate([self.templates, new]))
 
     def replace(self, rows: np.ndarray, templates: np.ndarray) -> AnchorTemplates:
         """These anchors with the ones at ``rows`` replaced by ``templates`` (a keyframe)."""
-        rows = np.asarray(rows, dtype=np.intp)
-        new = AnchorTemplates(templates)
         merged = self.templates.copy()
-        merged[rows] = new.templates
-        terms = _TemplateTerms(*(getattr(self.terms, f.name).copy() for f in fields(_TemplateTerms)))
-        for f in fields(_TemplateTerms):
-            getattr(terms, f.name)[rows] = getattr(new.terms, f.name)
-        return AnchorTemplates(merged, terms)
+        merged[np.asarray(rows, dtype=np.intp)] = templates
+        return AnchorTemplates(merged)
 
 
 @dataclass(frozen=True)
@@ -376,29 +367,28 @@ def align_templates(
     start: np.ndarray,
     iterations: int = 2,
     max_shift_px: float = 1.5,
-    start_patches: np.ndarray | None = None,
 ) -> Alignment:
     """Align templates to the frame near ``start`` (Lucas–Kanade for a translation, with gain and offset).
 
-    Minimises Σ (T̃(u) - g Ĩ(p + u))² over p, where T̃, Ĩ are the template and the
+    Minimises Σ w (T̃(u) - g Ĩ(p + u))² over p, where T̃, Ĩ are the template and the
     patch minus their means and the gain g = ‖T̃‖ / ‖Ĩ‖ (so the fit ignores
-    brightness and contrast, as NCC does).  Linearising the template gives the step
+    brightness and contrast, as NCC does), and w the robust, centre-weighted weights of
+    ``_compare``.  Linearising the template gives the step
 
-        d = H⁻¹ Σ ∇T (T̃ - g Ĩ),   H = Σ ∇T ∇Tᵀ,
+        d = H⁻¹ Σ w ∇T (T̃ - g Ĩ),   H = Σ w ∇T ∇Tᵀ,
 
-    with the template's gradients (central differences on its inner pixels) and H
-    computed once.  At the end, the position's covariance is σ² H⁻¹ with
-    σ² = Σ r² / (n - 4) (n inner pixels; translation, gain and offset fitted).
+    with the template's gradients (central differences on its inner pixels).  At the
+    end, the position's covariance is σ² H⁻¹ with σ² = Σ w r² / (Σ w - 4)
+    (translation, gain and offset fitted).  Runs the compiled kernel
+    (:mod:`._align_kernel`); ``_align_numpy`` is its NumPy reference.
 
     Parameters
     ----------
     frame : the prepared frame.
-    templates : (N, w, w) templates (w odd, at least 5), or an :class:`AnchorTemplates`
-        (whose terms are then reused).
+    templates : (N, w, w) templates (w odd, at least 5), or an :class:`AnchorTemplates`.
     start : (N, 2) start positions (x, y).
     iterations : Gauss–Newton steps.
     max_shift_px : an alignment that ends farther than this from ``start`` keeps the start.
-    start_patches : (N, w, w) the frame's patches at ``start`` when already sampled.
 
     Examples
     --------
@@ -409,11 +399,31 @@ def align_templates(
     >>> np.round(a.positions, 2), bool(a.ncc[0] > 0.999), bool(a.covariances[0, 0, 0] < 1e-3)
     (array([[20.3, 19.6]]), True, True)
     """
-    start = np.asarray(start, dtype=np.float64).reshape(-1, 2)
     bank = templates if isinstance(templates, AnchorTemplates) else AnchorTemplates(templates)
+    start = np.ascontiguousarray(start, dtype=np.float64).reshape(-1, 2)
+    return _ALIGN(frame, bank, start, int(iterations), float(max_shift_px))
+
+
+def _align_compiled(frame: DifferentialFrame, bank: AnchorTemplates, start: np.ndarray, iterations: int, max_shift_px: float) -> Alignment:
+    """The numba kernel (:mod:`._align_kernel`), track by track; same results as ``_align_numpy`` up to rounding."""
+    from ._align_kernel import align_batch
+
+    n, w = len(bank), bank.templates.shape[-1]
+    padded = frame.padded_frame
+    out = Alignment(np.empty((n, 2)), np.empty(n), np.empty((n, 2, 2)), np.empty(n), np.empty(n), np.empty(n, bool), np.empty((n, w, w), np.float32))
+    align_batch(
+        padded.padded, padded.pad, bank.templates, start, _centre_weights((w - 2) ** 2), iterations, max_shift_px,
+        np.sqrt(_QUANTIZATION_VARIANCE), _QUANTIZATION_VARIANCE,
+        out.positions, out.ncc, out.covariances, out.min_eigenvalue, out.residual_variance, out.converged, out.patches,
+    )
+    return out
+
+
+def _align_numpy(frame: DifferentialFrame, bank: AnchorTemplates, start: np.ndarray, iterations: int, max_shift_px: float) -> Alignment:
+    """The NumPy reference of the alignment: all templates at once, one array pass per operation."""
     w = bank.templates.shape[-1]
     terms = bank.terms
-    patches = frame.patches(start, w) if start_patches is None else start_patches
+    patches = frame.patches(start, w)
     current = start.copy()
     for _ in range(iterations):
         current = current + _compare(terms, patches[:, 1:-1, 1:-1]).step
@@ -425,6 +435,10 @@ def align_templates(
         patches[~converged] = frame.patches(start[~converged], w)
     fit = _compare(terms, patches[:, 1:-1, 1:-1])
     return Alignment(current, fit.ncc, fit.covariance, terms.min_eigenvalue, fit.sigma_sq, converged, patches)
+
+
+#: The alignment runs the compiled kernel; the NumPy reference is kept for the tests to compare.
+_ALIGN = _align_compiled
 
 
 @dataclass(frozen=True)
@@ -481,6 +495,26 @@ def _flow(
         flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
     )
     return found.reshape(-1, 2).astype(np.float64), status.reshape(-1) == 1
+
+
+def _forward_backward(
+    previous: DifferentialFrame, current: DifferentialFrame, p_prev: np.ndarray, z: np.ndarray, predicted: np.ndarray,
+    window: int, max_level: int, capture_px: float, tolerance_px: float,
+) -> np.ndarray:
+    """Distance between the previous positions and the flow back from the matches (NaN where it fails).
+
+    The flow back starts where the predicted motion says the match came from,
+    z - (p⁻ - p), i.e. the innovation z - p⁻ away from p: if the match is right it has
+    to travel that far (± the tolerance), which sets its pyramid depth.
+    """
+    error = np.full(len(z), np.nan)
+    start = z - (predicted - p_prev)
+    levels = pyramid_levels(np.linalg.norm(z - predicted, axis=1) + tolerance_px, max_level, capture_px)
+    for level in np.unique(levels):
+        rows = np.flatnonzero(levels == level)
+        back, ok = _flow(current.grey, previous.grey, z[rows], start[rows], window, level)
+        error[rows] = np.where(ok, np.linalg.norm(back - p_prev[rows], axis=1), np.nan)
+    return error
 
 
 def _inside(positions: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
@@ -613,21 +647,14 @@ def measure_differential(
     if limit is not None:
         reach = np.minimum(reach, limit)
 
-    # 1-2. Flow from the prediction and back, one OpenCV call per pyramid depth and direction.
+    # 1. Flow from the prediction, one OpenCV call per pyramid depth.
     followed = searchable & ~coasting & _inside(p_prev, current.shape, -0.5)
     levels = pyramid_levels(reach, max_level, capture_px)
     for level in np.unique(levels[followed]):
         rows = np.flatnonzero(followed & (levels == level))
-        forward, ok = _flow(previous.grey, current.grey, p_prev[rows], predicted[rows], window, level)
-        # Back from the match, started where the predicted motion says it came from.
-        back_start = forward - (predicted[rows] - p_prev[rows])
-        backward, ok_back = _flow(current.grey, previous.grey, forward, back_start, window, level)
-        error = np.linalg.norm(backward - p_prev[rows], axis=1)
-        z[rows] = forward
-        fb_error[rows] = np.where(ok & ok_back, error, np.nan)
+        z[rows], ok = _flow(previous.grey, current.grey, p_prev[rows], predicted[rows], window, level)
         levels_used[rows] = level
         rejection[rows[~ok]] = NOT_FOUND
-        rejection[rows[ok & ~(ok_back & (error <= forward_backward_px))]] = FORWARD_BACKWARD
 
     # Coasting tracks: search the anchor in the gate, shrunk to the plausible radius.  SSD
     # needs only the frame's window sums of I²; the alignment below checks the NCC.
@@ -647,32 +674,37 @@ def measure_differential(
     standing = np.flatnonzero(rejection == ACCEPTED)
     if len(standing):
         flowed = followed[standing]
-        at_match = current.patches(z[standing], w)
         bank = anchors if len(standing) == k else anchors.take(standing)
-        alignment = align_templates(current, bank, z[standing], iterations, anchor_agreement_px, at_match)
+        alignment = align_templates(current, bank, z[standing], iterations, anchor_agreement_px)
         ncc[standing] = alignment.ncc
-        very_good = alignment.converged & (alignment.ncc >= anchor_ncc)
+        # Near the border the anchor's window reaches into the replicated edge: there the chain measures.
+        away_from_border = _inside(alignment.positions, current.shape, w // 2 + 1)
+        very_good = alignment.converged & (alignment.ncc >= anchor_ncc) & away_from_border
+        # 2. Forward–backward check where the anchor does not settle the match on its own (a
+        # first appearance that matches very well where the flow ended is the point itself).
+        checked = standing[flowed & ~very_good]
+        fb_error[checked] = _forward_backward(previous, current, p_prev[checked], z[checked], predicted[checked], window, max_level, capture_px, forward_backward_px)
+        rejection[checked[~(fb_error[checked] <= forward_backward_px)]] = FORWARD_BACKWARD
+        live = rejection[standing] == ACCEPTED
         # The chain, where the anchor alone does not settle it: the previous frame's patch
         # against the flow's match (the flow reports neither its residual nor its appearance).
         # It is aligned from the match by the same robust, centre-weighted step as the anchor:
         # OpenCV's flow weighs every pixel of its window alike, so background moving behind a
         # corner drags it (the scene over 20 seeds: median RMS 0.328 → 0.255 px).
-        chain_positions, chain_patches = z[standing].copy(), at_match.copy()
+        chain_positions, chain_patches = z[standing].copy(), alignment.patches.copy()
         chain_variance = np.full(len(standing), np.nan)
         chain_cov = np.full((len(standing), 2, 2), np.nan)
         chain_eigenvalue = np.full(len(standing), np.nan)
         chain_ncc = np.full(len(standing), np.nan)
-        judged = flowed & ~very_good
+        judged = flowed & ~very_good & live
         if judged.any():
-            chain = align_templates(current, previous_patches[standing[judged]], z[standing[judged]], iterations, anchor_agreement_px, at_match[judged])
+            chain = align_templates(current, previous_patches[standing[judged]], z[standing[judged]], iterations, anchor_agreement_px)
             chain_positions[judged], chain_patches[judged] = chain.positions, chain.patches
             chain_variance[judged], chain_cov[judged] = chain.residual_variance, chain.covariances
             chain_eigenvalue[judged], chain_ncc[judged] = chain.min_eigenvalue, chain.ncc
         # The anchor measures where it matches very well, or explains the patch nearly as well
         # as the previous frame does; a coasting track (no chain) only at reacquire_ncc.
-        # Near the border its window reaches into the replicated edge: there the chain measures.
         as_good = alignment.residual_variance <= trust_ratio * chain_variance
-        away_from_border = _inside(alignment.positions, current.shape, w // 2 + 1)
         trusted = alignment.converged & (alignment.ncc >= min_ncc) & np.where(
             flowed, (very_good | as_good) & away_from_border, alignment.ncc >= reacquire_ncc
         )
@@ -684,13 +716,13 @@ def measure_differential(
         # cleanly: the previous frame's patch matches well and the flow back is tight.
         clean_chain = flowed & (chain_ncc >= clean_ncc) & (fb_error[standing] <= clean_forward_backward_px)
         mild = (alignment.ncc >= rescue_ncc) & clean_chain & ~trusted
-        rejection[standing[~(alignment.ncc >= min_ncc) & ~mild]] = APPEARANCE
+        rejection[standing[live & ~(alignment.ncc >= min_ncc) & ~mild]] = APPEARANCE
         # A keyframe may be cut only where the measurement is itself clean: anchored, or chained cleanly.
         keyframe_ok[standing] = trusted | clean_chain
-        rejection[standing[~flowed & ~trusted]] = NOT_FOUND
+        rejection[standing[live & ~flowed & ~trusted]] = NOT_FOUND
         eigenvalue = np.where(trusted | ~flowed, alignment.min_eigenvalue, chain_eigenvalue)
         # (Near the border the padded window's gradients say nothing; OpenCV's own eigenvalue test applies there.)
-        rejection[standing[~(eigenvalue >= min_eigenvalue) & away_from_border]] = TEXTURELESS
+        rejection[standing[live & ~(eigenvalue >= min_eigenvalue) & away_from_border]] = TEXTURELESS
         # Noise: the refinement's own covariance, plus where the anchor was cut (anchored)
         # or the previous measurement's (chained: its error carries over).
         noise[standing] = np.where(

@@ -107,8 +107,21 @@ def test_a_clean_translation_is_measured_anchored_with_a_small_noise():
     stds = np.sqrt(np.diagonal(m.noise_covariances, axis1=1, axis2=2))
     assert ((stds >= 0.15) & (stds < 0.25)).all()
     assert (np.linalg.eigvalsh(m.carried_covariances) > 0).all()
-    assert (m.forward_backward_px < 0.1).all()
+    # The anchor matches very well where the flow ended: the flow back is not needed there.
+    assert np.isnan(m.forward_backward_px).all()
     assert m.patches.shape == (len(GRID), 11, 11) and np.isfinite(m.patches).all()
+
+
+def test_the_flow_back_is_checked_where_the_anchor_does_not_settle_the_match():
+    previous, current, patches, _ = frames_and_anchors()
+    # Anchors of a changed appearance (noisy): they no longer match very well, so the
+    # chain measures, after the flow back from each match has landed where the track was.
+    noisy = AnchorTemplates(patches + np.random.default_rng(5).normal(0.0, 10.0, patches.shape))
+    m = measure(previous, current, patches, noisy, GRID + [1.5, -0.5])
+    checked = np.isfinite(m.forward_backward_px)
+    assert checked.mean() > 0.9 and (m.forward_backward_px[checked] < 0.1).all()
+    assert not m.anchored[checked].any() and m.accepted[checked].all()
+    np.testing.assert_allclose(m.positions[checked], GRID[checked] + [2.0, -1.0], atol=0.05)
 
 
 def test_each_check_refuses_with_its_own_reason():
@@ -176,3 +189,23 @@ def test_frames_in_another_grey_range_are_tracked_as_well(scale):
     other = track([f * scale if scale < 1 else (f * scale).astype(np.uint16) for f in frames], start)
     assert (other.status == 1).all()
     np.testing.assert_allclose(other.positions, reference.positions, atol=0.05)
+
+
+@pytest.mark.parametrize("iterations", [0, 1, 3])
+def test_the_compiled_alignment_matches_its_numpy_reference(iterations):
+    from kalmansfm.tracking.differential import _align_compiled, _align_numpy
+
+    rng = np.random.default_rng(6)
+    base = texture(7)
+    frame = prepare_differential_frame(0.8 * shifted(base, 1.3, -0.6) + rng.normal(0.0, 3.0, base.shape), 11)
+    # Points in the middle, at the border (replicated edge), one far outside, one not finite.
+    points = np.concatenate([GRID, [[0.5, 30.0], [219.0, 159.0], [-40.0, 10.0], [np.nan, 5.0]]])
+    bank = AnchorTemplates(prepare_differential_frame(base, 11).patches(points))
+    bank.templates[3] = 50.0  # a flat template: no step, NaN covariance
+    start = points + rng.uniform(-1.0, 1.0, points.shape)
+    compiled = _align_compiled(frame, bank, start, iterations, 1.5)
+    reference = _align_numpy(frame, AnchorTemplates(bank.templates), start, iterations, 1.5)
+    np.testing.assert_array_equal(compiled.converged, reference.converged)
+    for name, tolerance in (("positions", 1e-4), ("ncc", 1e-5), ("covariances", 1e-5), ("min_eigenvalue", 1e-4),
+                            ("residual_variance", 1e-3), ("patches", 1e-3)):
+        np.testing.assert_allclose(getattr(compiled, name), getattr(reference, name), rtol=1e-4, atol=tolerance, err_msg=name)
