@@ -112,21 +112,28 @@ class DifferentialFrame:
     Attributes
     ----------
     grey : (H, W) uint8, what OpenCV's Lucas–Kanade reads.
-    image : (H, W) float32, the frame the anchors are cut from and aligned to.
     window : side of the anchor templates (odd).
     search_radius : largest half-size of an anchor search box (coasting tracks).
+    fine : (H, W) float32 frame with more than 8 bits (scaled to 0…255), or None for an
+        8-bit frame; the anchors are cut from and aligned to it.
+    image : (property) the frame the anchors see, float32: ``fine``, or ``grey`` converted.
     prepared : (property, on first use) the frame prepared for the gated anchor search.
     """
 
     grey: np.ndarray
-    image: np.ndarray
     window: int
     search_radius: int
+    fine: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
         """(height, width)."""
         return self.grey.shape  # type: ignore[return-value]
+
+    @cached_property
+    def image(self) -> np.ndarray:
+        """The frame as float32 (exact for 8 bits)."""
+        return self.fine if self.fine is not None else self.grey.astype(np.float32)
 
     @cached_property
     def prepared(self) -> PreparedFrame:
@@ -135,13 +142,14 @@ class DifferentialFrame:
 
     @cached_property
     def padded_frame(self) -> PreparedFrame:
-        # A thin border for sampling patches when no search was needed this frame; the
-        # box sums of a PreparedFrame are not used by sampling (left empty).
+        """The frame with a border repeated around it, for sampling patches (the 8-bit frame as is)."""
         if "prepared" in self.__dict__:
             return self.prepared
+        # The box sums of a PreparedFrame are not used by sampling (left empty).
         pad = self.window // 2 + 4
-        padded = cv2.copyMakeBorder(self.image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
-        return PreparedFrame(self.image, padded, np.zeros((0, 0), np.float32), self.window, pad)
+        source = self.fine if self.fine is not None else self.grey
+        padded = cv2.copyMakeBorder(source, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+        return PreparedFrame(source, padded, np.zeros((0, 0), np.float32), self.window, pad)
 
     def patches(self, centers: np.ndarray, size: int | None = None) -> np.ndarray:
         """Bilinear ``size``×``size`` patches (default: the anchor window) at sub-pixel centres (x, y)."""
@@ -167,14 +175,14 @@ def prepare_differential_frame(frame: np.ndarray, window: int, search_radius: in
     >>> f.grey.dtype.name, int(f.grey[0, 0]), f.shape, f.patches(np.array([[10.0, 10.0]]), 3).shape
     ('uint8', 7, (20, 30), (1, 3, 3))
     """
-    image = np.ascontiguousarray(frame, dtype=np.float32)
+    frame = np.asarray(frame)
     if frame.dtype == np.uint8:
-        grey = frame
-    else:
-        if grey_scale != 1.0:
-            image = image * np.float32(grey_scale)
-        grey = np.clip(np.rint(image), 0, 255).astype(np.uint8)
-    return DifferentialFrame(np.ascontiguousarray(grey), image, int(window), int(search_radius))
+        return DifferentialFrame(np.ascontiguousarray(frame), int(window), int(search_radius))
+    fine = np.ascontiguousarray(frame, dtype=np.float32)
+    if grey_scale != 1.0:
+        fine = fine * np.float32(grey_scale)
+    grey = np.clip(np.rint(fine), 0, 255).astype(np.uint8)
+    return DifferentialFrame(grey, int(window), int(search_radius), fine)
 
 
 def pyramid_levels(reach_px: np.ndarray, max_level: int, capture_px: float = CAPTURE_PX) -> np.ndarray:
@@ -745,8 +753,9 @@ def measure_differential(
     rejection[standing_mask & ~(mahalanobis_sq <= gate_radius**2)] = GATE
     if limit is not None:
         rejection[(rejection == ACCEPTED) & ~(np.linalg.norm(offset, axis=1) <= limit)] = IMPLAUSIBLE
-    # The point's own appearance (the centre-weighted core, ±σ) must lie in the image.
-    rejection[(rejection == ACCEPTED) & ~_inside(z, current.shape, _CENTRE_SIGMA_PX)] = OUTSIDE
+    # The point itself must lie in the image (a point whose window leaves the image is still
+    # measured while the appearance check passes on the part that remains).
+    rejection[(rejection == ACCEPTED) & ~_inside(z, current.shape, 0.0)] = OUTSIDE
 
     accepted = rejection == ACCEPTED
     z[~accepted] = np.nan

@@ -167,9 +167,14 @@ class _Rows:
         return _Rows(*values)
 
 
-def _as_grey(frame: object, index: int) -> np.ndarray:
-    """The frame as a 2D float32 array (exact for 8- and 16-bit images; single precision is all the matcher uses)."""
+def _as_grey(frame: object, index: int, keep_8_bits: bool = False) -> np.ndarray:
+    """The frame as a 2D float32 array (exact for 8- and 16-bit images; single precision is all the matcher uses).
+
+    With ``keep_8_bits`` a 2D uint8 frame is returned as it is (the differential matcher reads 8 bits).
+    """
     array = np.asarray(frame)
+    if keep_8_bits and array.ndim == 2 and array.dtype == np.uint8:
+        return np.ascontiguousarray(array)
     if array.ndim == 3 and array.shape[2] in (3, 4):
         array = array[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR weights as OpenCV
     if array.ndim != 2:
@@ -282,7 +287,7 @@ class Tracker:
 
     def feed(self, frame: object) -> FrameEstimate:
         """Process the next frame and return the estimates for it."""
-        image = _as_grey(frame, self._frame_index + 1)
+        image = _as_grey(frame, self._frame_index + 1, keep_8_bits=self._differential)
         if self._shape is None:
             self._shape = image.shape  # type: ignore[assignment]
             if min(image.shape) < self.window:
@@ -305,7 +310,7 @@ class Tracker:
             points = self._initial_points
         else:
             points = detect_corners(
-                image, self.settings.max_features, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2
+                np.asarray(image, dtype=np.float32), self.settings.max_features, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2
             )
         if self._initial_ids is not None:
             ids = self._initial_ids
