@@ -560,7 +560,7 @@ def measure_differential(
     clean_forward_backward_px: float = 0.25,
     min_eigenvalue: float = 0.1,
     capture_px: float = CAPTURE_PX,
-    iterations: int = 1,
+    iterations: int = 2,
     fallback_noise: np.ndarray | None = None,
 ) -> DifferentialMeasurement:
     """Measure k tracks in ``current`` from their Kalman predictions (module docs).

@@ -135,10 +135,16 @@ def test_each_check_refuses_with_its_own_reason():
     tight = measure(previous, current, patches, anchors, GRID + [1.0, -1.0], max_innovation_px=np.full(len(GRID), 0.3))
     assert (tight.rejection == IMPLAUSIBLE).all()
     # Anchors of another texture: the appearance check refuses the matches (but for the odd
-    # patch of the other texture that happens to look alike).
-    other = AnchorTemplates(prepare_differential_frame(texture(9), 11).patches(GRID))
-    wrong = measure(previous, current, patches, other, GRID + [2.0, -1.0])
+    # patch of the other texture that happens to look alike) ...
+    other = prepare_differential_frame(texture(9), 11).patches(GRID)
+    wrong = measure(previous, current, other, AnchorTemplates(other), GRID + [2.0, -1.0])
     assert np.mean(wrong.rejection == APPEARANCE) >= 0.95
+    # ... unless the previous frame's patch matches cleanly (a mild appearance change that the
+    # chain follows): then a match whose anchor still matches at rescue_ncc is taken, chained.
+    mild = measure(previous, current, patches, AnchorTemplates(other), GRID + [2.0, -1.0])
+    taken = mild.accepted
+    assert np.mean(taken) <= 0.1 and (mild.anchor_ncc[taken] >= 0.7).all() and not mild.anchored[taken].any()
+    assert (mild.rejection[~taken] == APPEARANCE).all()
     # Predictions off the image.
     gone = measure(previous, current, patches, anchors, GRID - [500.0, 0.0])
     assert (gone.rejection == OUTSIDE).all()
