@@ -27,7 +27,7 @@ frame at once (``docs/tracking.md`` has the measurements behind each choice):
 6. **Noise from the refinement.**  R = σ² (Σ w ∇T ∇Tᵀ)⁻¹ of the refinement that
    measured, plus what it inherits (the anchor's covariance when it was cut at a
    keyframe; the previous measurement's for a chained match, whose error is the
-   previous one's plus the flow's), plus a floor of (0.15 px)² per axis.
+   previous one's plus the flow's), plus a floor of (0.12 px)² per axis.
 
 Coasting tracks (no measured position in the previous frame) are not followed by
 flow, which would follow whatever hid them: their anchor is searched by SSD in the
@@ -100,9 +100,9 @@ _QUANTIZATION_VARIANCE = 2.0 / 12.0
 # 3 px, the scene 0.38 → 0.32 px RMS; docs/tracking.md).
 _CENTRE_SIGMA_PX = 3.0
 # What σ² H⁻¹ does not see (bilinear interpolation, an appearance that changes slowly): a
-# floor of (0.15 px)² on each axis of R, calibrated on the built-in scene's seeds 0-9 (NEES
-# 8.6 without it, 2.3 with it) and checked on held-out seeds (tests, docs/tracking.md).
-_MODEL_NOISE_PX = 0.15
+# floor of (0.12 px)² on each axis of R, calibrated on the built-in scene's seeds 0-9 (NEES
+# 2.35, 1σ rate 0.68) and checked on held-out seeds (tests, docs/tracking.md).
+_MODEL_NOISE_PX = 0.12
 
 
 @dataclass(frozen=True)
@@ -458,7 +458,7 @@ class DifferentialMeasurement:
     positions : (k, 2) measured positions (x, y); NaN where rejected.
     accepted : (k,) True where the measurement passed every check.
     noise_covariances : (k, 2, 2) measurement noise R (px²) for the Kalman update: the
-        refinement's σ² H⁻¹, what it inherits, and a floor of (0.15 px)² per axis; NaN where rejected.
+        refinement's σ² H⁻¹, what it inherits, and a floor of (0.12 px)² per axis; NaN where rejected.
     rejection : (k,) int8 reason code, 0 where accepted (see :data:`REJECTION_NAMES`).
     anchored : (k,) True where the position is the anchor's alignment (drift-free).
     anchor_ncc : (k,) NCC of the anchor at the measured position (NaN if not computed).
@@ -469,7 +469,7 @@ class DifferentialMeasurement:
         ``previous_patches``); NaN where rejected.
     carried_covariances : (k, 2, 2) the part of ``noise_covariances`` that a later chained
         measurement (the next frame's ``previous_covariances``) or an anchor cut here
-        (``anchor_covariances``) inherits: R without its model floor of (0.15 px)² per axis.
+        (``anchor_covariances``) inherits: R without its model floor of (0.12 px)² per axis.
     keyframe_ok : (k,) True where a new anchor may be cut at the measurement: it is
         anchored, or chained cleanly (the previous frame's patch matches at NCC ≥
         ``clean_ncc`` and the flow back lands within ``clean_forward_backward_px``).
