@@ -11,12 +11,14 @@ core: cv2.setNumThreads(1) and OMP/OPENBLAS/MKL threads 1) by the wall clock and
 the process's CPU time (steadier on a shared machine; the best of 3 alternated runs
 on the speed rows), and the ratio of each tracker's CPU frames/s (or RMS error, on the
 sub-pixel rows) to LK's in the same run; then the held-out occluder scenes (seeds the
-tracker was not tuned on) and the identity check.  LK starts from the same points,
+tracker was not tuned on), the plain scene over 20 seeds, the posterior NEES on held-out
+seeds and the identity check.  LK starts from the same points,
 with OpenCV's defaults (21×21 window, 3 pyramid levels); an LK track ends at its first
 status 0.  "Kalman, differential" is the default matcher, "Kalman, search" the report's
 gated template search (``matcher="search"``).  Forward–backward survival on real
 footage is ``benchmarks/bench_survival.py``.  ``--quick`` skips the 5 000-feature
-speed row.
+speed row; ``--profile`` prints only the differential matcher's CPU time per stage at 500
+features (and LK's in the same run).
 """
 
 from __future__ import annotations
@@ -37,8 +39,12 @@ import numpy as np  # noqa: E402
 
 cv2.setNumThreads(1)
 
+from scipy.stats import chi2  # noqa: E402
+
+from kalmansfm.estimation.kalman import KalmanFilter  # noqa: E402
 from kalmansfm.io.frames import read_frames  # noqa: E402
 from kalmansfm.scenes import Occluder, render_scene  # noqa: E402
+from kalmansfm.tracking import differential  # noqa: E402
 from kalmansfm.tracking.detect import detect_corners  # noqa: E402
 from kalmansfm.tracking.tracker import Tracker  # noqa: E402
 
@@ -218,6 +224,73 @@ def scene_seeds(name: str, options: dict) -> str:
     return f"| {name} | {np.median(rms):.3f} | {np.mean(rms):.3f} | {np.max(rms):.3f} (seed {[*range(10), *HELD_OUT_SEEDS][int(np.argmax(rms))]}) | {100 * min(within):.1f} % |"
 
 
+def held_out_nees(options: dict) -> str:
+    """Posterior NEES of the measured, visible positions (frames 2 on) of the plain scene, held-out seeds."""
+    nees = []
+    for seed in HELD_OUT_SEEDS:
+        scene = render_scene(seed=seed)
+        start = scene.visible[0]
+        tracker = Tracker(scene.positions[0, start], **options)
+        for frame in scene.frames:
+            tracker.feed(frame)
+        result = tracker.result()
+        mask = (result.status == 1) & scene.visible[:, start]
+        mask[:2] = False  # the start frames carry Σ0
+        error = (result.positions - scene.positions[:, start])[mask]
+        nees.append(np.einsum("ni,nij,nj->n", error, np.linalg.inv(result.covariances[..., :2, :2][mask]), error))
+    nees = np.concatenate(nees)
+    return (f"{nees.mean():.2f} (2 expected), within the 1σ ellipse {np.mean(nees <= chi2.ppf(0.6827, 2)):.2f} (0.68), "
+            f"within 3σ {np.mean(nees <= chi2.ppf(0.9973, 2)):.3f} (0.997), {len(nees)} positions")
+
+
+def stage_profile(n_features: int = 500, runs: int = 3) -> str:
+    """CPU ms per frame of each stage of the differential matcher on the speed sequence (best of ``runs``), LK alongside."""
+    frames = textured_sequence(640, 480, 40)
+    points = detect_corners(frames[0], n_features, 0.001, 5.0, border_px=40)
+    stages = {
+        "flow, forward and back (OpenCV LK)": [(differential, "_flow")],
+        "anchor and chain alignment (numba)": [(differential, "_ALIGN")],
+        "coasting anchors' search (frame preparation + FFT search)": [(differential, "prepare_frame"), (differential, "match_templates")],
+        "Kalman predict": [(KalmanFilter, "predict")],
+        "Kalman update (per-track R)": [(KalmanFilter, "update")],
+    }
+    spent = dict.fromkeys(stages, 0.0)
+
+    def timed(name, function):
+        def wrapper(*args, **kwargs):
+            started = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                spent[name] += time.process_time() - started
+        return wrapper
+
+    originals = [(owner, attr, getattr(owner, attr)) for targets in stages.values() for owner, attr in targets]
+    for name, targets in stages.items():
+        for owner, attr in targets:
+            setattr(owner, attr, timed(name, getattr(owner, attr)))
+    try:
+        best = None
+        for _ in range(runs):
+            spent.update(dict.fromkeys(stages, 0.0))
+            total = len(frames) / run_kalman(frames, points)[2][1]
+            if best is None or total < best[0]:
+                best = (total, dict(spent))
+    finally:
+        for owner, attr, function in originals:
+            setattr(owner, attr, function)
+    lk = min(len(frames) / run_lk(frames, points)[2][1] for _ in range(runs))
+    total, parts = best
+    per_frame = 1000.0 / len(frames)
+    lines = [f"\nper-stage CPU time of the differential matcher, {len(points)} features 640×480, 40 frames (best of {runs}):\n",
+             "| stage | ms per frame |", "|---|---|"]
+    lines += [f"| {name} | {seconds * per_frame:.2f} |" for name, seconds in parts.items()]
+    lines.append(f"| everything else (frame preparation, checks, bookkeeping, records) | {(total - sum(parts.values())) * per_frame:.2f} |")
+    lines.append(f"| **total** | **{total * per_frame:.2f}** |")
+    lines.append(f"| OpenCV LK 21×21, 3 levels, same run | {lk * per_frame:.2f} |")
+    return "\n".join(lines)
+
+
 DIFFERENTIAL = {}
 SEARCH = {"matcher": "search"}
 SEARCH_NCC = {"matcher": "search", "score": "ncc"}
@@ -237,7 +310,12 @@ def best_of(runs: int, *calls):
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="skip the 5 000-feature speed row")
+    parser.add_argument("--profile", action="store_true", help="only the per-stage CPU time of the differential matcher (500 features)")
     args = parser.parse_args()
+    if args.profile:
+        print(stage_profile())
+        print(f"\none core; load average {os.getloadavg()[0]:.1f}", file=sys.stderr)
+        return 0
     lines = [
         "| sequence | tracker | RMS px | median px | within | survival | frames/s wall | frames/s CPU | ratio to LK |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -315,6 +393,8 @@ def main() -> int:
     print("| tracker | median RMS px | mean RMS px | worst RMS px | least within 2 px |\n|---|---|---|---|---|")
     for name, options in (("Kalman, differential", DIFFERENTIAL), ("Kalman, search (ssd)", SEARCH)):
         print(scene_seeds(name, options))
+    print(f"\nposterior NEES on the plain scene, held-out seeds {HELD_OUT_SEEDS.start}-{HELD_OUT_SEEDS.stop - 1}, "
+          f"Kalman, differential: {held_out_nees(DIFFERENTIAL)}")
     for name, options in (("differential", DIFFERENTIAL), ("search (ssd)", SEARCH)):
         print(identity_check(name, options))
     print(f"\none core (cv2.setNumThreads(1), OMP/OPENBLAS/MKL threads 1); {os.cpu_count()} CPUs on the machine, shared; "

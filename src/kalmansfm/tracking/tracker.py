@@ -131,7 +131,8 @@ class _Rows:
     (:class:`TemplateSpectra` for the search, :class:`AnchorTemplates` for the
     differential matcher).  The differential matcher also keeps ``chain`` (where the
     flow continues from: the last measured position), ``chain_cov`` (that measurement's
-    noise) and ``anchor_cov`` (the noise of where the anchor was cut; 0 at a first appearance).
+    noise), ``anchor_cov`` (the noise of where the anchor was cut; 0 at a first appearance)
+    and ``retired`` (lost tracks still in the filter until the next compaction).
     """
 
     ids: np.ndarray
@@ -144,6 +145,7 @@ class _Rows:
     chain: np.ndarray | None = None
     chain_cov: np.ndarray | None = None
     anchor_cov: np.ndarray | None = None
+    retired: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -256,7 +258,7 @@ class Tracker:
         if not self._differential:
             return _Rows(*common, np.zeros((n, w, w)), TemplateSpectra(np.zeros((n, w, w))))
         return _Rows(*common, np.zeros((n, w, w), np.float32), AnchorTemplates(np.zeros((n, w, w), np.float32)),
-                     np.zeros((n, 2)), np.zeros((n, 2, 2)), np.zeros((n, 2, 2)))
+                     np.zeros((n, 2)), np.zeros((n, 2, 2)), np.zeros((n, 2, 2)), np.zeros(n, bool))
 
     # -- validation -------------------------------------------------------------
     @staticmethod
@@ -372,11 +374,17 @@ class Tracker:
         if self._differential:
             self._previous = frame  # type: ignore[assignment]
 
+    def _live(self) -> np.ndarray:
+        """Rows of the filter that are tracks (not retired)."""
+        retired = self._rows.retired
+        return np.ones(len(self._rows), bool) if retired is None else ~retired
+
     def _detect_new(self, image: np.ndarray) -> np.ndarray:
-        room = self.settings.max_features - len(self._rows)
+        live = self._live()
+        room = self.settings.max_features - int(live.sum())
         if room <= 0:
             return np.zeros((0, 2))
-        occupied = self._kf.x[:, :2] if self._kf is not None and len(self._rows) else np.zeros((0, 2))
+        occupied = self._kf.x[live, :2] if self._kf is not None and len(self._rows) else np.zeros((0, 2))
         return detect_corners(
             image, room, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2, exclude=occupied
         )
@@ -434,9 +442,11 @@ class Tracker:
         covariances = np.broadcast_to(self.model.P0, (n, 4, 4)).copy()
         record = _FrameRecord(rows.ids.copy(), states, covariances, np.where(found, MEASURED, PREDICTED).astype(np.int8), scores)
         if self._kf is not None and len(self._rows):
-            states = np.concatenate([self._kf.x, states])
-            covariances = np.concatenate([np.broadcast_to(self._kf.P, (len(self._rows), 4, 4)), covariances])
-            rows = self._rows.append(rows)
+            # The filter is built again: retired rows leave it now.
+            live = self._live()
+            states = np.concatenate([self._kf.x[live], states])
+            covariances = np.concatenate([np.broadcast_to(self._kf.P, (len(self._rows), 4, 4))[live], covariances])
+            rows = self._rows.take(live).append(rows)
         self._set_filter(rows, states, covariances)
         return record
 
@@ -560,15 +570,31 @@ class Tracker:
         lost = (misses > limit) & ~(new_candidate & (misses == limit + 1))
         status = np.where(good, MEASURED, PREDICTED).astype(np.int8)
         status[lost] = LOST
-        states = np.array(kf.x)
-        covariances = np.array(kf.P)
-        states[lost] = np.nan
-        covariances[lost] = np.nan
-        record = _FrameRecord(rows.ids.copy(), states, covariances, status, scores)
+        if rows.retired is None:
+            states, covariances = np.array(kf.x), np.array(kf.P)
+            shown = slice(None)
+        else:
+            # Retired rows (lost earlier) are no tracks: not in the record, not lost again.
+            lost &= ~rows.retired
+            shown = np.flatnonzero(~rows.retired)
+            states, covariances = kf.x[shown], np.broadcast_to(kf.P, (len(rows), 4, 4))[shown]
+        states[lost[shown]] = np.nan
+        covariances[lost[shown]] = np.nan
+        record = _FrameRecord(rows.ids[shown].copy(), states, covariances, status[shown], np.asarray(scores)[shown])
         rows = replace(rows, misses=misses, innovation_sq=mean_sq)
         self._rows = rows
-        if lost.any():
+        if not lost.any():
+            return record
+        if rows.retired is None:
             keep = ~lost
+            self._set_filter(rows.take(keep), kf.x[keep], np.broadcast_to(kf.P, (len(rows), 4, 4))[keep])
+            return record
+        # Building the filter again validates every covariance: lost tracks of the differential
+        # matcher are retired in place (predicted, never measured) and leave it together.
+        retired = rows.retired | lost
+        self._rows = rows = replace(rows, retired=retired)
+        if retired.sum() > max(32, len(rows) // 8):
+            keep = ~retired
             self._set_filter(rows.take(keep), kf.x[keep], np.broadcast_to(kf.P, (len(rows), 4, 4))[keep])
         return record
 
@@ -584,6 +610,7 @@ class Tracker:
         # confirmation radius; every other track within its plausible radius.
         has_candidate = np.isfinite(rows.candidates[:, 0])
         centres = np.where(has_candidate[:, None], rows.candidates + kf.x_prior[:, 2:], predicted)
+        centres[rows.retired] = np.nan  # retired rows are not measured
         limit = np.where(has_candidate, self._confirmation_radius(), np.sqrt(self._plausible_radius_sq(rows.misses)))
         m = self._measure(
             frame, rows.chain, rows.templates, centres, np.array(kf.P_prior[:, :2, :2]), rows.anchors,

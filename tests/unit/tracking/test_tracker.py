@@ -87,6 +87,21 @@ def test_redetect_adds_tracks_with_new_ids_in_empty_regions():
     assert first[0] == 0 and first[1:].min() >= 2
 
 
+@pytest.mark.parametrize("matcher", ["differential", "search"])
+def test_tracks_that_leave_make_room_for_new_ones(matcher):
+    # The texture moves 4 px per frame: tracks leave through the border and are lost; the
+    # redetection refills up to max_features live tracks, never more, and a lost track
+    # never comes back.
+    frames, _ = moving_texture(24, step=(4.0, 0.0), size=(160, 120))
+    tracks = track(frames, None, redetect=True, redetect_every=2, max_features=30, matcher=matcher)
+    live = (tracks.status == MEASURED) | (tracks.status == PREDICTED)
+    assert live.sum(axis=1).max() <= 30
+    assert (tracks.status == LOST).sum() >= 10
+    assert live[-1].sum() >= 20
+    ended = np.cumsum(tracks.status == LOST, axis=0) > 0
+    assert not (ended & live).any()
+
+
 def test_streaming_gives_the_same_tracks_as_the_batch_function():
     frames, _ = moving_texture(6)
     p0 = np.array([[40.0, 40.0]])
