@@ -10,21 +10,26 @@ frame at once (``docs/tracking.md`` has the measurements behind each choice):
    where the track's plausible radius is smaller), and L levels capture about
    ``capture_px``·2^L pixels (measured), so a confident track runs on fewer
    levels.  Tracks are grouped by depth, one OpenCV call per group.
-2. **Forward–backward check.**  The same flow run from the current frame back to
-   the previous one, started at the match minus the predicted motion, must land
-   within ``forward_backward_px`` of where the track was.
-3. **Anchor.**  Each track carries an *anchor*: a template cut at its first
+2. **Anchor.**  Each track carries an *anchor*: a template cut at its first
    appearance (or at a later keyframe chosen by the caller).  It is aligned to
-   the frame from the flow's match by a robust, centre-weighted Gauss–Newton step
-   with gain and offset (:func:`align_templates`).  Where it agrees with the match
-   and either matches very well (NCC ≥ ``anchor_ncc``) or explains the patch
-   nearly as well as the previous frame does (``trust_ratio``), its position is the
-   measurement, so the track does not drift with the frame-to-frame chain.
-4. **Appearance.**  The anchor's centre-weighted NCC at the measurement must be at
-   least ``min_ncc``.
-5. **Gate and plausibility.**  (z - p⁻)ᵀ (Σ⁻)⁻¹ (z - p⁻) ≤ c², ‖z - p⁻‖ at most the
-   track's plausible radius, and the point's core inside the image.
-6. **Noise from the refinement.**  R = σ² (Σ w ∇T ∇Tᵀ)⁻¹ of the refinement that
+   the frame from the flow's match by robust, centre-weighted Gauss–Newton steps
+   with gain and offset (:func:`align_templates`, a compiled kernel).
+3. **Forward–backward check** where the anchor does not settle the match: the
+   flow from the current frame back to the previous one, started at the match
+   minus the predicted motion, must land within ``forward_backward_px`` of where
+   the track was.  A first appearance that matches very well (NCC ≥
+   ``anchor_ncc``) where the flow ended is the point itself: no flow back.
+4. **Chain.**  Elsewhere the previous frame's patch is aligned from the flow's
+   match by the same robust steps.  The anchor's position is the measurement
+   where it matches very well or explains the patch nearly as well as the
+   previous frame does (``trust_ratio``), so the track does not drift; the
+   chain's otherwise.
+5. **Appearance.**  The anchor's centre-weighted NCC at the measurement must be
+   at least ``min_ncc`` — or ``rescue_ncc`` where the chain is clean (a mild
+   appearance change that the previous frame's patch follows).
+6. **Gate and plausibility.**  (z - p⁻)ᵀ (Σ⁻)⁻¹ (z - p⁻) ≤ c², ‖z - p⁻‖ at most the
+   track's plausible radius, and the point in the image.
+7. **Noise from the refinement.**  R = σ² (Σ w ∇T ∇Tᵀ)⁻¹ of the refinement that
    measured, plus what it inherits (the anchor's covariance when it was cut at a
    keyframe; the previous measurement's for a chained match, whose error is the
    previous one's plus the flow's), plus a floor of (0.12 px)² per axis.
@@ -40,7 +45,7 @@ Coordinates: x = column, y = row, pixel centres at integer coordinates.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import cached_property
 
 import cv2
@@ -118,6 +123,8 @@ class DifferentialFrame:
         8-bit frame; the anchors are cut from and aligned to it.
     image : (property) the frame the anchors see, float32: ``fine``, or ``grey`` converted.
     prepared : (property, on first use) the frame prepared for the gated anchor search.
+    padded_frame : (property, on first use) the frame with a border repeated around it,
+        from which patches are sampled.
     """
 
     grey: np.ndarray
@@ -463,7 +470,8 @@ class DifferentialMeasurement:
     anchored : (k,) True where the position is the anchor's alignment (drift-free).
     anchor_ncc : (k,) NCC of the anchor at the measured position (NaN if not computed).
     forward_backward_px : (k,) distance between the previous position and the flow
-        back from the match (NaN for coasting tracks and failed flows).
+        back from the match (NaN for coasting tracks, failed flows, and tracks whose
+        anchor matched very well, where it is not run).
     levels : (k,) pyramid levels used for the flow (-1 for coasting tracks, searched instead).
     patches : (k, w, w) the frame's patches at the measured positions (the next frame's
         ``previous_patches``); NaN where rejected.
@@ -603,7 +611,7 @@ def measure_differential(
     min_eigenvalue : smallest structure-tensor eigenvalue per pixel (grey levels²/px²)
         of the template that locates the point.
     capture_px : displacement a single-level flow captures (sets the pyramid depth).
-    iterations : Gauss–Newton steps of the anchor's alignment.
+    iterations : Gauss–Newton steps of the anchor's and the chain's alignments.
     fallback_noise : (2, 2) noise R for a match whose own cannot be estimated (its
         template's structure tensor is singular, next to the image border); None
         refuses such matches (TEXTURELESS).
