@@ -64,6 +64,8 @@ CASES = [
     ("track", "{d}/good --out {out} --max-misses -1", "argument --max-misses: must be >= 0"),
     ("track", "{d}/good --out {out} --max-features 0", "--max-features must be >= 1"),
     ("track", "{d}/good --out {out} --score sad", "argument --score: invalid choice"),
+    ("track", "{d}/good --out {out} --matcher nearest", "argument --matcher: invalid choice"),
+    ("track", "{d}/good --out {out} --matcher search --window 301", "smaller than the 301-pixel window"),
     ("track", "{d}/good --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
     ("track", "{d}/good --out {d}/a_file.txt", "a_file.txt exists and is not a folder"),
     ("track", "{d}/good --out {d}/good", "output folder {d}/good is the input {d}/good"),

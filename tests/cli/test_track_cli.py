@@ -45,7 +45,30 @@ def test_automatic_features_with_options(scene_folder, tmp_path):
     code = cli.main(["track", str(folder), "--out", str(out), "--max-features", "20", "--score", "ncc",
                      "--gate-radius", "3", "--window", "9", "--max-misses", "2", "--redetect", "--quiet"])
     assert code == 0
-    assert read_summary(out / "summary.json").settings.effective_gate_radius == 3.0
+    settings = read_summary(out / "summary.json").settings
+    assert settings.effective_gate_radius == 3.0 and settings.matcher == "differential" and settings.coast_limit == 2
+
+
+@pytest.mark.parametrize("matcher", ["search", "differential"])
+def test_matcher_option_runs_that_matcher_and_records_it(scene_folder, tmp_path, matcher):
+    folder, scene = scene_folder
+    out = tmp_path / matcher
+    code = cli.main(["track", str(folder), "--out", str(out), "--points", str(folder.parent / "points.csv"),
+                     "--matcher", matcher, "--quiet"])
+    assert code == 0
+    tracks = read_tracks_npz(out / "tracks.npz")
+    assert tracks.settings.matcher == matcher
+    assert read_summary(out / "summary.json").settings.coast_limit == (3 if matcher == "search" else 5)
+    visible = np.flatnonzero(scene.visible[0])
+    assert np.nanmax(np.linalg.norm(tracks.positions - scene.positions[:, visible], axis=2)) < 1.0
+
+
+def test_unknown_matcher_is_a_usage_error(scene_folder, tmp_path, capsys):
+    folder, _ = scene_folder
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["track", str(folder), "--out", str(tmp_path / "x"), "--matcher", "nearest"])
+    assert exit_info.value.code == 2
+    assert "invalid choice" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

@@ -9,6 +9,7 @@ import sys
 from ..errors import InvalidInputError
 from ..pipeline import run_track
 from ..tracking import TrackerSettings
+from ..tracking.settings import MATCHERS
 from ._options import as_typed
 
 log = logging.getLogger("kalmansfm")
@@ -50,8 +51,10 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "track",
         parents=parents,
         help="track points through a folder of images, a glob or a video",
-        description="Track points with one Kalman filter per point (constant velocity): predict, search the "
-        "template inside the gate ellipse of the predicted covariance, update. Writes tracks.csv, tracks.npz, "
+        description="Track points with one Kalman filter per point (constant velocity): predict, measure, update. "
+        "The default matcher follows each point by Lucas-Kanade started from its prediction, checked by the gate, "
+        "a forward-backward flow and its anchor's appearance, with a measurement noise from the refinement itself; "
+        "--matcher search is the report's exhaustive SSD/NCC template search inside the gate ellipse. Writes tracks.csv, tracks.npz, "
         "covariance_trace.png, tracks.png, tracks.gif and summary.json to DIR. With --smooth the files hold "
         "Rauch-Tung-Striebel smoothed estimates (each given the whole sequence) instead of the online ones.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -65,10 +68,12 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     gate.add_argument("--gate", type=_probability, default=DEFAULTS.gate_probability, metavar="P",
                       help="gate confidence level: c² is the chi-square 2-dof quantile of P")
     gate.add_argument("--gate-radius", type=_positive_float, default=None, metavar="C", help="gate radius c directly")
-    p.add_argument("--score", choices=["ssd", "ncc"], default=DEFAULTS.score, help="template score")
+    p.add_argument("--matcher", choices=MATCHERS, default=DEFAULTS.matcher,
+                   help="differential: Lucas-Kanade from the Kalman prediction; search: the report's gated template search")
+    p.add_argument("--score", choices=["ssd", "ncc"], default=DEFAULTS.score, help="template score (--matcher search)")
     p.add_argument("--window", type=_odd_window, default=DEFAULTS.window, metavar="N", help="template side in pixels (odd)")
     p.add_argument("--max-misses", type=_count, default=DEFAULTS.max_misses, metavar="N",
-                   help="frames a track may coast before it is lost")
+                   help="frames a track may coast before it is lost (default: 3 with --matcher search, 5 with differential)")
     p.add_argument("--redetect", action="store_true", help="add new corners in empty regions as tracks are lost")
     p.add_argument("--smooth", action="store_true",
                    help="write RTS-smoothed positions and covariances (fixed interval: each frame uses all frames)")
@@ -84,6 +89,7 @@ def settings_from_args(args: argparse.Namespace) -> TrackerSettings:
     with as_typed({"window": "--window", "gate_probability": "--gate", "gate_radius": "--gate-radius",
                    "max_misses": "--max-misses"}):
         return TrackerSettings(
+            matcher=args.matcher,
             window=args.window,
             score=args.score,
             gate_probability=args.gate,

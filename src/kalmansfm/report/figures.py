@@ -27,6 +27,7 @@ from .drawing import track_colors  # noqa: E402
 __all__ = [
     "covariance_trace_figure",
     "status_timeline_figure",
+    "survival_figure",
     "singular_values_figure",
     "shape_views",
     "shape_views_figure",
@@ -102,6 +103,40 @@ def status_timeline_figure(tracks: Tracks) -> bytes:
     shown = (TrackStatus.INITIALISING, TrackStatus.MEASURED, TrackStatus.PREDICTED, TrackStatus.LOST)
     handles = [matplotlib.patches.Patch(color=STATUS_COLORS[s], label=s.label) for s in shown]
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncol=4, frameon=False)
+    return _figure_png(fig)
+
+
+def survival_figure(tracks: Tracks) -> bytes | None:
+    """Track survival: the share of the first frame's tracks still measured per frame, and each track's life.
+
+    Left: per frame, the fraction of the tracks started in frame 0 that are measured
+    there, and that are alive (measured or coasting).  Right: every track as a
+    horizontal bar from its first to its last measured frame, sorted by length, so
+    that a tracker that keeps its tracks shows long bars.
+    """
+    if tracks.n_tracks == 0:
+        return None
+    measured = tracks.status == TrackStatus.MEASURED
+    started = tracks.status[0] != TrackStatus.NONE
+    frames = np.arange(tracks.n_frames)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.2))
+    if started.any():
+        left.plot(frames, measured[:, started].mean(axis=1), color="#2ca02c", label="measured")
+        left.plot(frames, tracks.alive[:, started].mean(axis=1), color="#ff9f1c", linestyle="--", label="measured or coasting")
+    left.set_ylim(0, 1.02)
+    left.set_xlabel("frame")
+    left.set_ylabel("share of frame 0's tracks")
+    left.grid(alpha=0.3)
+    left.legend()
+    ever = measured.any(axis=0)
+    first = np.argmax(measured, axis=0)[ever]
+    last = (tracks.n_frames - 1 - np.argmax(measured[::-1], axis=0))[ever]
+    order = np.argsort(last - first, kind="stable")
+    right.barh(np.arange(len(order)), last[order] - first[order] + 1, left=first[order], height=0.85, color="#2ca02c", linewidth=0)
+    right.set_xlim(0, tracks.n_frames)
+    right.set_xlabel("frame")
+    right.set_ylabel("tracks, by measured life")
+    right.set_yticks([])
     return _figure_png(fig)
 
 

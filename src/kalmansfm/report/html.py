@@ -347,6 +347,15 @@ def _section_uncertainty(run: RunFolder) -> str | None:
                 "predicted (coasting) or lost.",
             )
         )
+        survival = figures.survival_figure(run.tracks)
+        if survival is not None:
+            parts.append(
+                _figure(
+                    survival,
+                    "Survival: the share of the first frame's tracks measured (solid) or alive (dashed) in each "
+                    "frame, and every track's life from its first to its last measured frame, sorted by length.",
+                )
+            )
     return "".join(parts) or None
 
 

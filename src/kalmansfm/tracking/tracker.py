@@ -1,7 +1,17 @@
-"""The Kalman-gated template tracker: predict, search the gate, update — for all tracks at once.
+"""The Kalman tracker: predict, measure, update — for all tracks at once.
 
-Per frame, with one batched :class:`~kalmansfm.estimation.KalmanFilter` holding every
-live track:
+Two matchers measure the tracks (``TrackerSettings.matcher``; ``docs/tracking.md``):
+
+- ``"differential"`` (default): Lucas–Kanade started from each track's prediction,
+  checked by the gate, a forward–backward flow and its anchor's appearance, anchored to
+  its first appearance or a keyframe, with a measurement noise R from the refinement
+  itself (:mod:`kalmansfm.tracking.differential`; :meth:`Tracker._step_differential`).
+  A coasting track is searched with its anchor and, as below, re-acquired only when a
+  second frame confirms the candidate.
+- ``"search"``: the report's gated exhaustive template search, described below.
+
+Per frame of the search, with one batched :class:`~kalmansfm.estimation.KalmanFilter`
+holding every live track:
 
 1. predict s⁻ = Φ s, Σ⁻ = Φ Σ Φᵀ + Q;
 2. search each track's template inside its gate ellipse
@@ -58,7 +68,7 @@ A track predicted where its window does not fit in the image is not measured.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -67,6 +77,7 @@ from .._validation import as_float_array
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..estimation.kalman import KalmanFilter
 from .detect import detect_corners
+from .differential import AnchorTemplates, DifferentialFrame, measure_differential, prepare_differential_frame
 from .matching import PreparedFrame, TemplateSpectra, match_templates, prepare_frame, refine_translation, sample_patches
 from .settings import TrackerSettings
 from .smoothing import smooth_tracks
@@ -111,9 +122,61 @@ class _FrameRecord:
     scores: np.ndarray
 
 
-def _as_grey(frame: object, index: int) -> np.ndarray:
-    """The frame as a 2D float32 array (exact for 8- and 16-bit images; single precision is all the matcher uses)."""
+@dataclass(frozen=True)
+class _Rows:
+    """Per-track state beside the Kalman filter, one row per live track in the filter's order.
+
+    ``templates`` is the search's current template, or the differential matcher's patch
+    at the last measurement (the chain's reference); ``anchors`` the anchor templates
+    (:class:`TemplateSpectra` for the search, :class:`AnchorTemplates` for the
+    differential matcher).  The differential matcher also keeps ``chain`` (where the
+    flow continues from: the last measured position), ``chain_cov`` (that measurement's
+    noise), ``anchor_cov`` (the noise of where the anchor was cut; 0 at a first appearance)
+    and ``retired`` (lost tracks still in the filter until the next compaction).
+    """
+
+    ids: np.ndarray
+    misses: np.ndarray
+    innovation_sq: np.ndarray
+    candidates: np.ndarray
+    strikes: np.ndarray
+    templates: np.ndarray
+    anchors: TemplateSpectra | AnchorTemplates
+    chain: np.ndarray | None = None
+    chain_cov: np.ndarray | None = None
+    anchor_cov: np.ndarray | None = None
+    retired: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def take(self, index: np.ndarray) -> _Rows:
+        """The rows at ``index`` (indices or a boolean mask)."""
+        return _Rows(*(None if (v := getattr(self, f.name)) is None else (v.take(index) if f.name == "anchors" else v[index])
+                       for f in fields(_Rows)))
+
+    def append(self, other: _Rows) -> _Rows:
+        """These rows followed by ``other``'s."""
+        values = []
+        for f in fields(_Rows):
+            mine, theirs = getattr(self, f.name), getattr(other, f.name)
+            if mine is None:
+                values.append(None)
+            elif f.name == "anchors":
+                values.append(mine.append(theirs.templates))
+            else:
+                values.append(np.concatenate([mine, theirs]))
+        return _Rows(*values)
+
+
+def _as_grey(frame: object, index: int, keep_8_bits: bool = False) -> np.ndarray:
+    """The frame as a 2D float32 array (exact for 8- and 16-bit images; single precision is all the matcher uses).
+
+    With ``keep_8_bits`` a 2D uint8 frame is returned as it is (the differential matcher reads 8 bits).
+    """
     array = np.asarray(frame)
+    if keep_8_bits and array.ndim == 2 and array.dtype == np.uint8:
+        return np.ascontiguousarray(array)
     if array.ndim == 3 and array.shape[2] in (3, 4):
         array = array[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR weights as OpenCV
     if array.ndim != 2:
@@ -124,7 +187,7 @@ def _as_grey(frame: object, index: int) -> np.ndarray:
 
 
 class Tracker:
-    """Streaming Kalman-gated template tracker: feed one frame at a time.
+    """Streaming Kalman tracker (differential or search matcher): feed one frame at a time.
 
     Parameters
     ----------
@@ -176,22 +239,26 @@ class Tracker:
         self._shape: tuple[int, int] | None = None
         self._next_id = 0
         self._records: list[_FrameRecord] = []
-        # Tracks in the filter.
+        self._differential = s.matcher == "differential"
+        # Tracks in the filter, and their rows of per-track state.
         self._kf: KalmanFilter | None = None
-        self._ids = np.zeros(0, np.int64)
-        self._templates = np.zeros((0, self.window, self.window))
-        # The anchors with their spectra, transformed again only when an anchor changes.
-        self._anchor_bank = TemplateSpectra(np.zeros((0, self.window, self.window)))
-        self._anchor_strikes = np.zeros(0, np.int64)
-        self._misses = np.zeros(0, np.int64)
-        self._innovation_sq = np.zeros(0)
-        # Re-acquisition candidates (x, y) of coasting tracks, waiting for the next frame's
-        # confirmation; NaN where there is none.
-        self._candidates = np.zeros((0, 2))
+        self._rows = self._empty_rows()
+        # The previous frame (the differential matcher's flow starts there), and the factor
+        # that brings the frames' grey levels to 0…255 for the flow.
+        self._previous: DifferentialFrame | None = None
+        self._grey_scale: float | None = None
         # Tracks started in the previous frame and waiting for their second frame.
         self._pending_ids = np.zeros(0, np.int64)
         self._pending_positions = np.zeros((0, 2))
-        self._pending_templates = np.zeros((0, self.window, self.window))
+        self._pending_templates = np.zeros((0, self.window, self.window), np.float32 if self._differential else np.float64)
+
+    def _empty_rows(self, n: int = 0) -> _Rows:
+        w = self.window
+        common = (np.zeros(n, np.int64), np.zeros(n, np.int64), np.full(n, _INITIAL_INNOVATION_SQ), np.full((n, 2), np.nan), np.zeros(n, np.int64))
+        if not self._differential:
+            return _Rows(*common, np.zeros((n, w, w)), TemplateSpectra(np.zeros((n, w, w))))
+        return _Rows(*common, np.zeros((n, w, w), np.float32), AnchorTemplates(np.zeros((n, w, w), np.float32)),
+                     np.zeros((n, 2)), np.zeros((n, 2, 2)), np.zeros((n, 2, 2)), np.zeros(n, bool))
 
     # -- validation -------------------------------------------------------------
     @staticmethod
@@ -222,7 +289,7 @@ class Tracker:
 
     def feed(self, frame: object) -> FrameEstimate:
         """Process the next frame and return the estimates for it."""
-        image = _as_grey(frame, self._frame_index + 1)
+        image = _as_grey(frame, self._frame_index + 1, keep_8_bits=self._differential)
         if self._shape is None:
             self._shape = image.shape  # type: ignore[assignment]
             if min(image.shape) < self.window:
@@ -245,7 +312,7 @@ class Tracker:
             points = self._initial_points
         else:
             points = detect_corners(
-                image, self.settings.max_features, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2
+                np.asarray(image, dtype=np.float32), self.settings.max_features, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2
             )
         if self._initial_ids is not None:
             ids = self._initial_ids
@@ -253,13 +320,29 @@ class Tracker:
         else:
             ids = np.arange(len(points), dtype=np.int64)
             self._next_id = len(points)
-        self._start_pending(image, points, ids)
+        frame = self._prepare(image)
+        self._start_pending(frame, points, ids)
         self._records.append(self._pending_record())
+        self._previous = frame if self._differential else None
 
-    def _start_pending(self, image: np.ndarray, points: np.ndarray, ids: np.ndarray) -> None:
+    def _prepare(self, image: np.ndarray) -> PreparedFrame | DifferentialFrame:
+        if self._differential:
+            if self._grey_scale is None:
+                # The flow reads 8-bit images: frames in another range (16-bit, 0…1 floats) are
+                # scaled once, by the first frame's brightest pixel, the same for the whole sequence.
+                brightest = float(image.max()) if image.size else 0.0
+                self._grey_scale = 255.0 / brightest if brightest > 255.0 or 0.0 < brightest <= 1.0 else 1.0
+            return prepare_differential_frame(image, self.window, self.settings.max_search_radius, self._grey_scale)
+        return prepare_frame(image, self.window, self.settings.max_search_radius)
+
+    def _start_pending(self, frame: PreparedFrame | DifferentialFrame, points: np.ndarray, ids: np.ndarray) -> None:
+        if self._differential:
+            templates = frame.patches(points)  # type: ignore[union-attr]
+        else:
+            templates = sample_patches(frame.image, points, self.window)
         self._pending_ids = np.concatenate([self._pending_ids, ids])
         self._pending_positions = np.concatenate([self._pending_positions, points])
-        self._pending_templates = np.concatenate([self._pending_templates, sample_patches(image, points, self.window)])
+        self._pending_templates = np.concatenate([self._pending_templates, templates])
 
     def _pending_record(self) -> _FrameRecord:
         n = len(self._pending_ids)
@@ -273,106 +356,142 @@ class Tracker:
         )
 
     def _next_frame(self, image: np.ndarray) -> None:
-        frame = prepare_frame(image, self.window, self.settings.max_search_radius)
+        frame = self._prepare(image)
         records: list[_FrameRecord] = []
-        if self._kf is not None and len(self._ids):
-            records.append(self._step_filter(frame))
+        if self._kf is not None and len(self._rows):
+            records.append(self._step_differential(frame) if self._differential else self._step_filter(frame))  # type: ignore[arg-type]
         if len(self._pending_ids):
-            records.append(self._start_filter(frame))
+            records.append(self._start_differential(frame) if self._differential else self._start_filter(frame))  # type: ignore[arg-type]
         record = _concatenate_records(records)
         if self.settings.redetect and self._frame_index % self.settings.redetect_every == 0:
             new = self._detect_new(frame.image)
             if len(new):
                 ids = np.arange(self._next_id, self._next_id + len(new), dtype=np.int64)
                 self._next_id += len(new)
-                self._start_pending(frame.image, new, ids)
+                self._start_pending(frame, new, ids)
                 record = _concatenate_records([record, self._pending_record()])
         self._records.append(record)
+        if self._differential:
+            self._previous = frame  # type: ignore[assignment]
+
+    def _live(self) -> np.ndarray:
+        """Rows of the filter that are tracks (not retired)."""
+        retired = self._rows.retired
+        return np.ones(len(self._rows), bool) if retired is None else ~retired
 
     def _detect_new(self, image: np.ndarray) -> np.ndarray:
-        room = self.settings.max_features - len(self._ids)
+        live = self._live()
+        room = self.settings.max_features - int(live.sum())
         if room <= 0:
             return np.zeros((0, 2))
-        occupied = self._kf.x[:, :2] if self._kf is not None and len(self._ids) else np.zeros((0, 2))
+        occupied = self._kf.x[live, :2] if self._kf is not None and len(self._rows) else np.zeros((0, 2))
         return detect_corners(
             image, room, self.settings.quality_level, self.settings.min_distance_px, border_px=self.window // 2, exclude=occupied
         )
 
-    def _start_filter(self, frame: PreparedFrame) -> _FrameRecord:
-        """Second frame of new tracks: SSD search around the first position, s0 and Σ0."""
-        n = len(self._pending_ids)
-        P0_pos = np.broadcast_to(self.model.P0[:2, :2], (n, 2, 2))
-        match = match_templates(
-            frame, self._pending_templates, self._pending_positions, P0_pos, self.gate_radius, "ssd", self.settings.max_search_radius
-        )
-        found = match.searched & (match.dissimilarity <= _START_DISSIMILARITY)
-        second = np.where(found[:, None], match.positions, self._pending_positions)
-        # s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀]
-        states = np.concatenate([second, second - self._pending_positions], axis=1)
-        templates = np.where(found[:, None, None], sample_patches(frame, second, self.window), self._pending_templates)
-        # Found: still initialising (a measurement, with the start-up prior Σ0 as covariance).
-        status = np.where(found, INITIALISING, PREDICTED).astype(np.int8)
-        covariances = np.broadcast_to(self.model.P0, (n, 4, 4)).copy()
-        self._add_to_filter(self._pending_ids, states, covariances, templates, self._pending_templates, (~found).astype(np.int64))
-        record = _FrameRecord(self._pending_ids.copy(), states, covariances, status, match.dissimilarity)
+    def _take_pending(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pending tracks (ids, first positions, templates), now leaving the pending list."""
+        taken = self._pending_ids, self._pending_positions, self._pending_templates
         self._pending_ids = np.zeros(0, np.int64)
         self._pending_positions = np.zeros((0, 2))
-        self._pending_templates = np.zeros((0, self.window, self.window))
+        self._pending_templates = self._pending_templates[:0]
+        return taken
+
+    def _start_filter(self, frame: PreparedFrame) -> _FrameRecord:
+        """Second frame of new tracks: SSD search around the first position, s0 and Σ0."""
+        ids, first, templates = self._take_pending()
+        n = len(ids)
+        P0_pos = np.broadcast_to(self.model.P0[:2, :2], (n, 2, 2))
+        match = match_templates(frame, templates, first, P0_pos, self.gate_radius, "ssd", self.settings.max_search_radius)
+        found = match.searched & (match.dissimilarity <= _START_DISSIMILARITY)
+        second = np.where(found[:, None], match.positions, first)
+        current = np.where(found[:, None, None], sample_patches(frame, second, self.window), templates)
+        rows = replace(self._empty_rows(n), ids=ids, misses=(~found).astype(np.int64), templates=current, anchors=TemplateSpectra(templates))
+        return self._add_to_filter(rows, first, second, found, match.dissimilarity)
+
+    def _start_differential(self, frame: DifferentialFrame) -> _FrameRecord:
+        """Second frame of new tracks: the flow from the first position (gate of Σ0), s0 and Σ0."""
+        ids, first, templates = self._take_pending()
+        n = len(ids)
+        anchors = AnchorTemplates(templates)
+        m = self._measure(frame, first, templates, first, np.broadcast_to(self.model.P0[:2, :2], (n, 2, 2)), anchors)
+        found = m.accepted
+        second = np.where(found[:, None], m.positions, first)
+        rows = replace(
+            self._empty_rows(n), ids=ids, misses=(~found).astype(np.int64), anchors=anchors,
+            templates=np.where(found[:, None, None], m.patches, templates), chain=second,
+            chain_cov=np.where(found[:, None, None], m.carried_covariances, 0.0),
+        )
+        return self._add_to_filter(rows, first, second, found, 1.0 - m.anchor_ncc)
+
+    def _measure(self, frame: DifferentialFrame, previous_positions: np.ndarray, previous_patches: np.ndarray,
+                 predicted: np.ndarray, covariances: np.ndarray, anchors: AnchorTemplates, **extra: Any) -> Any:
+        s = self.settings
+        assert self._previous is not None  # internal invariant: the first frame was prepared
+        return measure_differential(
+            self._previous, frame, previous_positions, previous_patches, predicted, covariances, anchors,
+            gate_radius=self.gate_radius, window=self.window, max_level=s.max_pyramid_level,
+            forward_backward_px=s.forward_backward_px, min_ncc=s.min_ncc, anchor_ncc=s.anchor_ncc,
+            reacquire_ncc=s.reacquire_ncc, fallback_noise=self.model.R, **extra,
+        )
+
+    def _add_to_filter(self, rows: _Rows, first: np.ndarray, second: np.ndarray, found: np.ndarray, scores: np.ndarray) -> _FrameRecord:
+        """Start the filter of new tracks at their second frame: s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀], Σ0."""
+        n = len(rows)
+        states = np.concatenate([second, second - first], axis=1)
+        covariances = np.broadcast_to(self.model.P0, (n, 4, 4)).copy()
+        # Found: still initialising (a measurement, with the start-up prior Σ0 as covariance).
+        record = _FrameRecord(rows.ids.copy(), states, covariances, np.where(found, INITIALISING, PREDICTED).astype(np.int8), scores)
+        if self._kf is not None and len(self._rows):
+            # The filter is built again: retired rows leave it now.
+            live = self._live()
+            states = np.concatenate([self._kf.x[live], states])
+            covariances = np.concatenate([np.broadcast_to(self._kf.P, (len(self._rows), 4, 4))[live], covariances])
+            rows = self._rows.take(live).append(rows)
+        self._set_filter(rows, states, covariances)
         return record
 
-    def _add_to_filter(
-        self, ids: np.ndarray, states: np.ndarray, covariances: np.ndarray, templates: np.ndarray, anchors: np.ndarray, misses: np.ndarray
-    ) -> None:
-        if self._kf is not None and len(self._ids):
-            states = np.concatenate([self._kf.x, states])
-            covariances = np.concatenate([np.broadcast_to(self._kf.P, (len(self._ids), 4, 4)), covariances])
-            ids = np.concatenate([self._ids, ids])
-            templates = np.concatenate([self._templates, templates])
-            anchors = self._anchor_bank.append(anchors)
-            misses = np.concatenate([self._misses, misses])
-            strikes = np.concatenate([self._anchor_strikes, np.zeros(len(states) - len(self._ids), np.int64)])
-            innovation_sq = np.concatenate([self._innovation_sq, np.full(len(states) - len(self._ids), _INITIAL_INNOVATION_SQ)])
-            candidates = np.concatenate([self._candidates, np.full((len(states) - len(self._ids), 2), np.nan)])
-        else:
-            strikes = np.zeros(len(states), np.int64)
-            innovation_sq = np.full(len(states), _INITIAL_INNOVATION_SQ)
-            candidates = np.full((len(states), 2), np.nan)
-        self._set_filter(ids, states, covariances, templates, anchors, misses, strikes, innovation_sq, candidates)
-
-    def _set_filter(self, ids, states, covariances, templates, anchors, misses, strikes, innovation_sq, candidates) -> None:  # type: ignore[no-untyped-def]
+    def _set_filter(self, rows: _Rows, states: np.ndarray, covariances: np.ndarray) -> None:
         m = self.model
-        if len(ids):
+        if len(rows):
             shared = bool(np.all(covariances == covariances[:1]))
             P = covariances[0] if shared else covariances
             self._kf = KalmanFilter(states, P, m.F, m.H, m.Q, m.R)
         else:
             self._kf = None
-        self._ids, self._templates = ids, templates
-        self._anchor_bank = anchors if isinstance(anchors, TemplateSpectra) else TemplateSpectra(anchors)
-        self._misses, self._anchor_strikes, self._innovation_sq = misses, strikes, innovation_sq
-        self._candidates = candidates
+        self._rows = rows
+
+    def _plausible_radius_sq(self, coasted: np.ndarray) -> np.ndarray:
+        """κ² (k + 1)(m + floor²) per track: the squared distance from the prediction a match may lie after coasting k frames."""
+        scale_sq = self.settings.max_innovation_ratio**2 * (1.0 + coasted)
+        return scale_sq * (self._rows.innovation_sq + _INNOVATION_FLOOR_PX**2)
+
+    def _confirmation_radius(self) -> np.ndarray:
+        """κ √(m + floor²) per track: how far a confirming match may lie from where its candidate moved."""
+        return self.settings.max_innovation_ratio * np.sqrt(self._rows.innovation_sq + _INNOVATION_FLOOR_PX**2)
 
     def _step_filter(self, frame: PreparedFrame) -> _FrameRecord:
         kf = self._kf
         assert kf is not None  # internal invariant, not user input
+        rows = self._rows
         kf.predict()
         predicted = kf.x_prior[:, :2].copy()
         prior_P = np.array(kf.P_prior)
-        coasting = self._misses > 0
+        coasting = rows.misses > 0
         anchored = self.settings.template_policy == "anchored"
-        search_templates = self._templates
+        search_templates = rows.templates
         if anchored and coasting.any():
             # The current template may have caught part of whatever hid the point: a
             # coasting track is searched with its anchor, the last verified appearance.
-            search_templates = np.where(coasting[:, None, None], self._anchors, self._templates)
+            search_templates = np.where(coasting[:, None, None], rows.anchors.templates, rows.templates)
         search_centres, search_covariances = predicted, prior_P[:, :2, :2]
-        has_candidate = np.isfinite(self._candidates[:, 0])
+        has_candidate = np.isfinite(rows.candidates[:, 0])
         if has_candidate.any():
             # A re-acquisition candidate is looked for where it should have moved, within
             # the confirmation radius, not in the coast's grown gate (where a look-alike
             # may match better than the point itself).
             radius = self._confirmation_radius()
-            search_centres = np.where(has_candidate[:, None], self._candidates + kf.x_prior[:, 2:], predicted)
+            search_centres = np.where(has_candidate[:, None], rows.candidates + kf.x_prior[:, 2:], predicted)
             search_covariances = np.where(
                 has_candidate[:, None, None], np.eye(2) * (radius / self.gate_radius)[:, None, None] ** 2, search_covariances
             )
@@ -395,7 +514,7 @@ class Tracker:
             if tracking.any():
                 z, dissimilarity, agrees = self._anchor_check(frame, z, tracking, dissimilarity)
                 confirmed |= agrees
-            used = np.where(confirmed[:, None, None], self._anchors, self._templates)
+            used = np.where(confirmed[:, None, None], rows.anchors.templates, rows.templates)
             accepted = confirmed | tracking
         else:
             accepted = np.where(coasting, strict | (found & has_candidate), found)
@@ -408,8 +527,7 @@ class Tracker:
         # gate but jumps against a streak of small innovations.  While coasting, the
         # prediction error grows about linearly with the frames missed.
         innovation_sq = np.sum((z - predicted) ** 2, axis=1)
-        scale_sq = self.settings.max_innovation_ratio**2 * (1.0 + self._misses)
-        plausible = innovation_sq <= scale_sq * (self._innovation_sq + _INNOVATION_FLOOR_PX**2)
+        plausible = innovation_sq <= self._plausible_radius_sq(rows.misses)
         # A track predicted where its window does not fit in the image (leaving it) is not
         # measured: its gate is clipped to the image, and the best match of a clipped
         # gate is wherever the image ends, not the point.
@@ -422,47 +540,114 @@ class Tracker:
         good = accepted & plausible
         if self.settings.refine and good.any():
             z[good] = refine_translation(frame, used[good], z[good])
-        good, new_candidate = self._confirm_reacquisitions(z, good, coasting, strict)
+        good, new_candidate, candidates = self._confirm_reacquisitions(z, good, coasting, strict)
+        strikes = rows.strikes
+        anchors = rows.anchors
         if anchored:
-            self._update_anchor_strikes(frame, z, good, good & confirmed, dissimilarity)
+            strikes, anchors = self._update_anchor_strikes(frame, z, good, good & confirmed, dissimilarity)
         z[~good] = np.nan
         kf.update(z)
+        templates = rows.templates
+        if self.settings.template_policy != "first" and good.any():
+            templates = templates.copy()
+            templates[good] = sample_patches(frame, z[good], self.window)
+        rows = replace(rows, candidates=candidates, strikes=strikes, anchors=anchors, templates=templates)
+        return self._finish_step(rows, good, new_candidate, innovation_sq, dissimilarity)
+
+    def _finish_step(
+        self, rows: _Rows, good: np.ndarray, new_candidate: np.ndarray, innovation_sq: np.ndarray, scores: np.ndarray
+    ) -> _FrameRecord:
+        """After the update: innovation statistics, misses and losses, the frame's record; lost tracks leave the filter."""
+        kf = self._kf
+        assert kf is not None  # internal invariant, not user input
         # Exponentially weighted mean of the squared one-frame innovation of accepted matches
         # (after coasting k frames, the innovation's square over k + 1).
-        self._innovation_sq = np.where(
-            good,
-            (1.0 - _INNOVATION_WEIGHT) * self._innovation_sq + _INNOVATION_WEIGHT * innovation_sq / (1.0 + self._misses),
-            self._innovation_sq,
+        mean_sq = np.where(
+            good, (1.0 - _INNOVATION_WEIGHT) * rows.innovation_sq + _INNOVATION_WEIGHT * innovation_sq / (1.0 + rows.misses), rows.innovation_sq
         )
-
-        misses = np.where(good, 0, self._misses + 1)
+        misses = np.where(good, 0, rows.misses + 1)
         # A candidate found on the last allowed frame gets one more frame to be confirmed.
-        lost = (misses > self.settings.max_misses) & ~(new_candidate & (misses == self.settings.max_misses + 1))
+        limit = self.settings.coast_limit
+        lost = (misses > limit) & ~(new_candidate & (misses == limit + 1))
         status = np.where(good, MEASURED, PREDICTED).astype(np.int8)
         status[lost] = LOST
-        states = np.array(kf.x)
-        covariances = np.array(kf.P)
-        states[lost] = np.nan
-        covariances[lost] = np.nan
-        record = _FrameRecord(self._ids.copy(), states, covariances, status, dissimilarity)
-
-        if self.settings.template_policy != "first" and good.any():
-            fresh = sample_patches(frame, z[good], self.window)
-            self._templates = self._templates.copy()
-            self._templates[good] = fresh
-        self._misses = misses
-        if lost.any():
+        if rows.retired is None:
+            states, covariances = np.array(kf.x), np.array(kf.P)
+            shown = slice(None)
+        else:
+            # Retired rows (lost earlier) are no tracks: not in the record, not lost again.
+            lost &= ~rows.retired
+            shown = np.flatnonzero(~rows.retired)
+            states, covariances = kf.x[shown], np.broadcast_to(kf.P, (len(rows), 4, 4))[shown]
+        states[lost[shown]] = np.nan
+        covariances[lost[shown]] = np.nan
+        record = _FrameRecord(rows.ids[shown].copy(), states, covariances, status[shown], np.asarray(scores)[shown])
+        rows = replace(rows, misses=misses, innovation_sq=mean_sq)
+        self._rows = rows
+        if not lost.any():
+            return record
+        if rows.retired is None:
             keep = ~lost
-            P_keep = np.broadcast_to(kf.P, (len(self._ids), 4, 4))[keep]
-            self._set_filter(
-                self._ids[keep], kf.x[keep], P_keep, self._templates[keep], self._anchor_bank.take(keep),
-                self._misses[keep], self._anchor_strikes[keep], self._innovation_sq[keep], self._candidates[keep],
-            )
+            self._set_filter(rows.take(keep), kf.x[keep], np.broadcast_to(kf.P, (len(rows), 4, 4))[keep])
+            return record
+        # Building the filter again validates every covariance: lost tracks of the differential
+        # matcher are retired in place (predicted, never measured) and leave it together.
+        retired = rows.retired | lost
+        self._rows = rows = replace(rows, retired=retired)
+        if retired.sum() > max(32, len(rows) // 8):
+            keep = ~retired
+            self._set_filter(rows.take(keep), kf.x[keep], np.broadcast_to(kf.P, (len(rows), 4, 4))[keep])
         return record
+
+    def _step_differential(self, frame: DifferentialFrame) -> _FrameRecord:
+        """Predict, measure by flow from the prediction (or re-acquire by the anchor), update; see the module docs."""
+        kf = self._kf
+        assert kf is not None  # internal invariant, not user input
+        rows = self._rows
+        kf.predict()
+        predicted = kf.x_prior[:, :2].copy()
+        coasting = rows.misses > 0
+        # A re-acquisition candidate is looked for where it should have moved, within the
+        # confirmation radius; every other track within its plausible radius.
+        has_candidate = np.isfinite(rows.candidates[:, 0])
+        centres = np.where(has_candidate[:, None], rows.candidates + kf.x_prior[:, 2:], predicted)
+        centres[rows.retired] = np.nan  # retired rows are not measured
+        limit = np.where(has_candidate, self._confirmation_radius(), np.sqrt(self._plausible_radius_sq(rows.misses)))
+        m = self._measure(
+            frame, rows.chain, rows.templates, centres, np.array(kf.P_prior[:, :2, :2]), rows.anchors,
+            coasting=coasting, previous_covariances=rows.chain_cov, anchor_covariances=rows.anchor_cov, max_innovation_px=limit,
+        )
+        good, new_candidate, candidates = self._confirm_reacquisitions(m.positions, m.accepted, coasting, m.accepted)
+        z = np.where(good[:, None], m.positions, np.nan)
+        # R from the refinement itself; the model's R where nothing was measured (unused).
+        noise = np.where(good[:, None, None], m.noise_covariances, self.model.R)
+        kf.update(z, R=0.5 * (noise + np.swapaxes(noise, 1, 2)))
+        innovation_sq = np.sum((m.positions - predicted) ** 2, axis=1)
+        # A keyframe: the anchor is renewed at the measurement after anchor_patience accepted
+        # frames in a row that it did not measure (its appearance has changed for good), and at
+        # once when it matches below the re-acquisition level (it could no longer find the point
+        # again) — on the first such frame whose measurement is clean, so that a keyframe is never
+        # cut at a doubtful match (the passing edge of an occluder, a chain that just slipped).
+        strikes = np.where(good & ~m.anchored, rows.strikes + 1, np.where(good, 0, rows.strikes))
+        due = (strikes >= self.settings.anchor_patience) | ~(m.anchor_ncc >= self.settings.reacquire_ncc)
+        renew = np.flatnonzero(good & m.keyframe_ok & due)
+        anchors, anchor_cov = rows.anchors, rows.anchor_cov
+        if len(renew):
+            anchors = anchors.replace(renew, m.patches[renew])  # type: ignore[union-attr]
+            anchor_cov = anchor_cov.copy()  # type: ignore[union-attr]
+            anchor_cov[renew] = m.carried_covariances[renew]
+            strikes[renew] = 0
+        rows = replace(
+            rows, candidates=candidates, strikes=strikes, anchors=anchors, anchor_cov=anchor_cov,
+            templates=np.where(good[:, None, None], m.patches, rows.templates),
+            chain=np.where(good[:, None], m.positions, rows.chain),
+            chain_cov=np.where(good[:, None, None], m.carried_covariances, rows.chain_cov),
+        )
+        return self._finish_step(rows, good, new_candidate, innovation_sq, 1.0 - m.anchor_ncc)
 
     def _confirm_reacquisitions(
         self, z: np.ndarray, good: np.ndarray, coasting: np.ndarray, strict: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Hold a coasting track's first trusted match back until the next frame confirms it.
 
         A match that ends a coast becomes a *candidate*; the track stays predicted in this
@@ -474,21 +659,18 @@ class Tracker:
         one) thus never becomes a measurement: it would have to move as the hidden point
         moves.
 
-        Returns the accepted matches and where a new candidate was set.
+        Returns the accepted matches, where a new candidate was set, and the candidates.
         """
         kf = self._kf
         assert kf is not None  # internal invariant, not user input
         reacquired = good & coasting
-        expected = self._candidates + kf.x_prior[:, 2:]
+        expected = self._rows.candidates + kf.x_prior[:, 2:]
         offset = np.linalg.norm(z - expected, axis=1)
-        confirmed = reacquired & (offset <= self._confirmation_radius())  # False where there was no candidate (NaN)
+        # False where there was no candidate (NaN)
+        confirmed = reacquired & (offset <= self._confirmation_radius())
         new_candidate = reacquired & ~confirmed & strict
-        self._candidates = np.where(new_candidate[:, None], z, np.nan)
-        return (good & ~coasting) | confirmed, new_candidate
-
-    def _confirmation_radius(self) -> np.ndarray:
-        """κ √(m + floor²) per track: how far a confirming match may lie from where its candidate moved."""
-        return self.settings.max_innovation_ratio * np.sqrt(self._innovation_sq + _INNOVATION_FLOOR_PX**2)
+        candidates = np.where(new_candidate[:, None], z, np.nan)
+        return (good & ~coasting) | confirmed, new_candidate, candidates
 
     def _anchor_check(
         self, frame: PreparedFrame, z: np.ndarray, tracking: np.ndarray, dissimilarity: np.ndarray
@@ -502,34 +684,33 @@ class Tracker:
         # get no prediction and are not searched (the anchor bank is indexed by track).
         around = np.where(tracking[:, None], z, np.nan)
         tight = np.broadcast_to(np.eye(2) * (2.0 / self.gate_radius) ** 2, (len(z), 2, 2))
-        anchor = match_templates(frame, self._anchor_bank, around, tight, self.gate_radius, self.settings.score, 4)
+        anchor = match_templates(frame, self._rows.anchors, around, tight, self.gate_radius, self.settings.score, 4)  # type: ignore[arg-type]
         agrees = tracking & anchor.searched & (anchor.dissimilarity <= self.settings.anchor_threshold)
         z = np.where(agrees[:, None], anchor.positions, z)
         dissimilarity = np.where(agrees, anchor.dissimilarity, dissimilarity)
         return z, dissimilarity, agrees
 
-    @property
-    def _anchors(self) -> np.ndarray:
-        return self._anchor_bank.templates
-
     def _update_anchor_strikes(
         self, frame: PreparedFrame, z: np.ndarray, good: np.ndarray, confirmed: np.ndarray, dissimilarity: np.ndarray
-    ) -> None:
+    ) -> tuple[np.ndarray, TemplateSpectra]:
         """Count frames in a row whose accepted match the anchor did not confirm; renew the anchor after ``anchor_patience``.
 
         The view has then changed for good, and the current template's match becomes
         the new anchor — but only on a frame where that match is itself as clean as a
         trusted anchor's, so that a partly occluded patch never becomes an anchor.
+
+        Returns the strikes and the anchors.
         """
-        strikes = self._anchor_strikes.copy()
+        strikes = self._rows.strikes.copy()
         strikes[confirmed] = 0
         unconfirmed = good & ~confirmed
         strikes[unconfirmed] += 1
+        anchors = self._rows.anchors
         renew = np.flatnonzero(unconfirmed & (strikes >= self.settings.anchor_patience) & (dissimilarity <= self.settings.anchor_threshold))
         if len(renew):
-            self._anchor_bank = self._anchor_bank.replace(renew, sample_patches(frame, z[renew], self.window))
+            anchors = anchors.replace(renew, sample_patches(frame, z[renew], self.window))
             strikes[renew] = 0
-        self._anchor_strikes = strikes
+        return strikes, anchors  # type: ignore[return-value]
 
     def _estimate(self) -> FrameEstimate:
         r = self._records[-1]

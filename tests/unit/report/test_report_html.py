@@ -11,7 +11,7 @@ from kalmansfm.io import RunSummary, load_run, summary_json
 from kalmansfm.io.structure import CameraMotion
 from kalmansfm.report import build_report
 from kalmansfm.report.drawing import gate_ellipses, render_tracked_frames
-from kalmansfm.report.figures import camera_rotations, track_error_per_frame
+from kalmansfm.report.figures import camera_rotations, survival_figure, track_error_per_frame
 from kalmansfm.tracking import TrackerSettings, Tracks
 
 _SUMMARY = summary_json(RunSummary(command="demo", input="x")).replace("\n", "")
@@ -43,9 +43,9 @@ def test_full_run_has_every_section_and_is_self_contained(full_report):
     parsed = assert_self_contained(document)
     assert parsed.section_ids == ALL_SECTIONS
     assert {"player-image", "player-frames", "view3d", "shape-data", "js-status"} <= parsed.ids
-    # strip of 6 frames + player + covariance trace, status, singular values, 2 shape views, rotation,
-    # tracking error, rotation error
-    assert len(parsed.images) == 6 + 1 + 8
+    # strip of 6 frames + player + covariance trace, status, survival, singular values, 2 shape views,
+    # rotation, tracking error, rotation error
+    assert len(parsed.images) == 6 + 1 + 9
     assert not list(path.parent.glob(".*.tmp")), "temporary files left behind"
 
 
@@ -275,3 +275,11 @@ def test_unrecovered_points_and_degenerate_camera_rows_are_left_out(tmp_path):
     shape = json.loads(payload, parse_constant=reject)
     assert shape["labels"] == TRACK_IDS.tolist()
     assert shape["camera_frames"] == list(range(N_FRAMES))
+
+
+def test_survival_figure_draws_the_tracks_it_is_given():
+    status = np.array([[1, 1, 1], [1, 2, 1], [1, 3, 1], [1, 0, 2]], np.int8)
+    positions = np.where((status == 1)[..., None] | (status == 2)[..., None], 10.0, np.nan) * np.ones((4, 3, 2))
+    png = survival_figure(Tracks(positions=positions, status=status, track_ids=np.arange(3)))
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert survival_figure(Tracks(positions=np.zeros((4, 0, 2)), status=np.zeros((4, 0), np.int8), track_ids=np.zeros(0, np.int64))) is None
