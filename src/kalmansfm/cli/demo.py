@@ -6,6 +6,8 @@ import argparse
 import webbrowser
 
 from ..pipeline import describe, run_demo
+from ..tracking import TrackerSettings
+from ..tracking.settings import MATCHERS
 from ._options import as_typed
 
 
@@ -35,6 +37,9 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         default=True,
         help="RTS-smooth the tracks (each estimate given the whole sequence) before writing and factorizing them",
     )
+    p.add_argument("--matcher", choices=MATCHERS, default=TrackerSettings().matcher,
+                   help="differential: Lucas-Kanade from the Kalman prediction, anchored and checked; search: the "
+                   "report's exhaustive template search inside the gate (see 'kalmansfm track --help')")
     p.add_argument("--camera", choices=("affine", "perspective"), default="affine",
                    help="affine: factorization; perspective: calibrated reconstruction of your --input with --focal "
                    "(bundle adjustment, covariances in the free-network gauge)")
@@ -49,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     with as_typed({"n_frames": "--frames", "seed": "--seed", "focal": "--focal"}):
         result = run_demo(
             args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet,
-            camera=args.camera, focal=args.focal,
+            camera=args.camera, focal=args.focal, settings=TrackerSettings(matcher=args.matcher),
         )
     print(describe(result))
     if args.open and result.report is not None:
