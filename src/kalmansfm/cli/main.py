@@ -98,8 +98,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         word = "terminated" if number == signal.SIGTERM else "interrupted"
         print(f"{prog}: {word}; {_interrupt_message(exc, commits_before)}", file=sys.stderr)
         return 128 + int(number)
-    except Exception as exc:  # a bug, not a user mistake
-        if debug:
+    except Exception as exc:
+        if _signals_received:
+            # A Ctrl-C that lands while a compiled module initialises comes out of the import as
+            # that module's own error (NumPy: "ImportError: initialization failed"): an interrupt.
+            _close_progress_bars()
+            number = _signals_received[-1]
+            word = "terminated" if number == signal.SIGTERM else "interrupted"
+            print(f"{prog}: {word}; {_interrupt_message(KeyboardInterrupt(), commits_before)}", file=sys.stderr)
+            return 128 + int(number)
+        if debug:  # a bug, not a user mistake
             raise
         _close_progress_bars()
         print(
@@ -109,14 +117,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+#: The signals (SIGINT, SIGTERM) the command line has received in this process.
+_signals_received: list[int] = []
+
+
 def _terminate(signum: int, frame: object) -> None:
     """SIGTERM handler: stop the way Ctrl-C does, so that staged files are removed on the way out."""
+    _signals_received.append(signum)
     raise Interrupted(signal_number=signum)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """SIGINT handler: Python's own (KeyboardInterrupt), remembering that the signal came."""
+    _signals_received.append(signum)
+    raise KeyboardInterrupt
 
 
 def run() -> None:
     """Console-script entry point: signal handling first, then the command."""
     signal.signal(signal.SIGTERM, _terminate)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when Ctrl-C is ignored
+        signal.signal(signal.SIGINT, _interrupt)
     code = main()
     # The command is over and has said what happened: a Ctrl-C or SIGTERM while Python shuts down
     # (a tenth of a second with NumPy, OpenCV and Matplotlib loaded) must not end the process by
