@@ -1,4 +1,3 @@
-from pathlib import Path
 
 import fake_run  # tests/unit/report (see tests/conftest.py)
 import pytest

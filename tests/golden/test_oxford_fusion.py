@@ -7,9 +7,6 @@ project's readers, as a user's would.  Source: Visual Geometry Group, University
 Oxford, multi-view data (``../shared/data/oxford_model_house``, ``oxford_merton1``).
 """
 
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,17 +16,11 @@ from kalmansfm.io.cameras import match_cameras, read_cameras
 from kalmansfm.io.tracks import read_tracks
 from kalmansfm.structure.point_fusion import fuse
 
-ROOT = Path(__file__).resolve().parents[2]
-DATA = ROOT / ".." / "shared" / "data"
+from _oxford import DATASETS, convert
 
 
-def convert(name, out):
-    """Run the documented converter, as a user would."""
-    subprocess.run([sys.executable, str(ROOT / "examples" / "oxford_to_csv.py"), str(DATA / name), str(out)],
-                   check=True, capture_output=True)
 
-
-@pytest.fixture(scope="module", params=["oxford_model_house", "oxford_merton1"])
+@pytest.fixture(scope="module", params=DATASETS)
 def dataset(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
     convert(request.param, out)

@@ -11,9 +11,6 @@ camera centres ≤ 1 %, reprojection RMS ≤ 0.5 px, ≥ 95 % of the points; Mer
 multi-view data (``../shared/data/oxford_model_house``, ``oxford_merton1``).
 """
 
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,17 +22,11 @@ from kalmansfm.structure.alignment import align_similarity
 from kalmansfm.structure.pinhole import decompose_projection
 from kalmansfm.structure.perspective import reconstruct_perspective
 
-ROOT = Path(__file__).resolve().parents[2]
-DATA = ROOT / ".." / "shared" / "data"
+from _oxford import DATA, DATASETS, convert
 
 
-def convert(name, out):
-    """Run the documented converter, as a user would."""
-    subprocess.run([sys.executable, str(ROOT / "examples" / "oxford_to_csv.py"), str(DATA / name), str(out)],
-                   check=True, capture_output=True)
 
-
-@pytest.fixture(scope="module", params=["oxford_model_house", "oxford_merton1"])
+@pytest.fixture(scope="module", params=DATASETS)
 def run(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
     data = read_oxford(DATA / request.param)

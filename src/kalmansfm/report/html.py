@@ -1,7 +1,7 @@
 """The self-contained HTML report of a run folder.
 
 :func:`build_report` reads only the files of a finished run (see
-:func:`kalmansfm.report.run_folder.load_run`) and writes one HTML file in which
+:func:`kalmansfm.io.run_folder.load_run`) and writes one HTML file in which
 every image is an embedded PNG data URI and all CSS and JavaScript are inline,
 so the file can be mailed, archived or opened offline.  A section appears only
 when its inputs exist.
@@ -717,7 +717,7 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
     Parameters
     ----------
     run : RunFolder
-        What :func:`kalmansfm.report.run_folder.load_run` read.
+        What :func:`kalmansfm.io.run_folder.load_run` read.
     progress : bool
         Show a progress bar (stderr) while frames are drawn.
     """
