@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..structure.pinhole import CameraSet
+from ..structure.pinhole import CameraSet, intrinsic_matrices
 from ._csv import number
 from .tracks import _floats, _indices
 
@@ -112,8 +112,7 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
         if bad.any():
             i = int(np.argmax(bad))
             raise InvalidInputError(f"{file}: line {lines[i]}: fx and fy must be > 0 (pixels); got {fx[i]}, {fy[i]}")
-        K = np.zeros((len(frames), 3, 3))
-        K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2], K[:, 2, 2] = fx, skew, cx, fy, cy, 1.0
+        K = intrinsic_matrices(fx, fy, cx, cy, skew)
         R = values[:, 5:14].reshape(-1, 3, 3)
         off = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
         bad = ~(off <= _ROTATION_TOLERANCE)
