@@ -474,10 +474,12 @@ def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray
         payload["cameras"] = np.round(camera_rotation_matrices(run.motion.rows), 6).tolist()
         payload["camera_frames"] = run.motion.frames.tolist()
     if run.cameras is not None and len(run.cameras.frames):
-        payload["cameras"] = np.round(run.cameras.rotations, 6).tolist()
+        pose = run.cameras.decompose()
+        centres = pose.centers - centre
+        payload["cameras"] = np.round(pose.rotations, 6).tolist()
         payload["camera_frames"] = run.cameras.frames.tolist()
-        payload["camera_centres"] = np.round(run.cameras.centres - centre, 6).tolist()
-        payload["radius"] = max(radius, float(np.linalg.norm(run.cameras.centres - centre, axis=1).max()) / 1.6)
+        payload["camera_centres"] = np.round(centres, 6).tolist()
+        payload["radius"] = max(radius, float(np.linalg.norm(centres, axis=1).max()) / 1.6)
     return payload
 
 
