@@ -92,8 +92,9 @@ def stage_perspective(out: OutputDirectory, rec: PerspectiveReconstruction, fram
     names = stage_points(out, track_ids, rec.points, rec.point_covariances, rec.views, rec.point_status,
                          rec.point_reprojection_rms, comment=f"{comment}; covariances in the {COVARIANCE_GAUGE}")
     reg = rec.registered
+    K = np.broadcast_to(intrinsics, (len(reg), 3, 3))
     out.write_text("cameras.csv", pose_cameras_csv(
-        np.asarray(frames)[reg], np.broadcast_to(intrinsics, (len(reg), 3, 3))[reg], rec.rotations[reg], rec.translations[reg],
+        np.asarray(frames)[reg], K[reg], rec.rotations[reg], rec.translations[reg],
         rotation_std_deg=np.degrees(rms_std(rec.camera_covariances[reg, :3, :3])),
         centre_std=rms_std(rec.camera_covariances[reg, 3:, 3:])))
     names.append("cameras.csv")
