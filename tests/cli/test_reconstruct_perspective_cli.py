@@ -5,13 +5,15 @@ import pytest
 
 from kalmansfm.cli.main import main
 from kalmansfm.io import load_run, read_summary
-from kalmansfm.io.intrinsics import intrinsics_csv
-from kalmansfm.io.perspective import CAMERA_POSE_COLUMNS, read_perspective_cameras
+from kalmansfm.io.intrinsics import intrinsics_csv, read_intrinsics
+from kalmansfm.io.cameras import POSE_COLUMNS, POSE_STD_COLUMNS, read_cameras
 from kalmansfm.io.structure import STRUCTURE_COLUMNS
 from kalmansfm.io.tracks import observations_csv
+from kalmansfm.pipeline import run_reconstruct
 from kalmansfm.report import build_report
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.alignment import align_similarity
+from kalmansfm.structure.points import rms_std
 
 
 def tracks_text(observations, frames):
@@ -50,14 +52,14 @@ def test_perspective_run_folder_files_report_and_accuracy(files, scene, capsys):
     assert sorted(p.name for p in run.iterdir()) == [
         "cameras.csv", "reconstruction.png", "structure.csv", "structure.ply", "summary.json"]
     assert (run / "structure.csv").read_text().splitlines()[0] == ",".join(STRUCTURE_COLUMNS)
-    assert (run / "cameras.csv").read_text().splitlines()[0] == ",".join(CAMERA_POSE_COLUMNS)
+    assert (run / "cameras.csv").read_text().splitlines()[0] == ",".join(POSE_COLUMNS + POSE_STD_COLUMNS)
     assert "free-network gauge" in (run / "structure.ply").read_text().splitlines()[2]
     summary = read_summary(run / "summary.json")
     p = summary.perspective
     assert p.registered_frames == 7 and p.reconstructed >= 140 and p.pixel_std_px == pytest.approx(0.5, rel=0.1)
     assert p.initial_pair[0] >= 20  # frame numbers of the file, not indices
     # the files hold the reconstruction: points match the truth after alignment, cameras by frame number
-    cams = read_perspective_cameras(run / "cameras.csv")
+    cams = read_cameras(run / "cameras.csv")
     assert cams.frames.tolist() == list(range(20, 27))
     table = load_run(run)
     al = align_similarity(table.structure.points, scene.points[table.structure.track_ids - 500])
@@ -65,6 +67,35 @@ def test_perspective_run_folder_files_report_and_accuracy(files, scene, capsys):
     assert al.rms < 0.05 and cov.shape == (len(table.structure.track_ids), 3, 3) and np.isfinite(cov).all()
     html = build_report(run).read_text()
     assert "Perspective reconstruction" in html and "camera_centres" in html
+
+
+def test_cameras_csv_of_a_perspective_run_is_the_reconstruction_and_feeds_fuse(files, capsys):
+    """One schema: the cameras.csv that reconstruct writes is read by read_cameras and by ``fuse --cameras``."""
+    k_file = str(files / "K.csv")
+    assert main(args(files, "--camera", "perspective", "--intrinsics", k_file)) == 0
+    written = files / "run" / "cameras.csv"
+    # the same reconstruction through the pipeline function the command runs, for its R and t
+    same = run_reconstruct(files / "tracks.csv", files / "again", camera="perspective", intrinsics=k_file)
+    assert (files / "again" / "cameras.csv").read_bytes() == written.read_bytes()
+    rec, frames = same.perspective, same.tracks.frames
+    reg = rec.registered
+    cams = read_cameras(written)
+    assert cams.frames.tolist() == frames[reg].tolist() == list(range(20, 27))
+    # P = K [R | t] with the K of K.csv and the reconstruction's R, t, to rounding
+    K = read_intrinsics(k_file, frames)[reg]
+    P = K @ np.concatenate([rec.rotations[reg], rec.translations[reg][:, :, None]], axis=2)
+    scale = np.abs(P).max(axis=(1, 2), keepdims=True)
+    np.testing.assert_allclose(cams.matrices / scale, P / scale, rtol=0, atol=1e-12)
+    # the uncertainty columns keep their meaning
+    table = np.genfromtxt(written, delimiter=",", names=True)
+    np.testing.assert_allclose(table["rotation_std_deg"],
+                               np.degrees(rms_std(rec.camera_covariances[reg, :3, :3])), rtol=1e-15)
+    np.testing.assert_allclose(table["centre_std"], rms_std(rec.camera_covariances[reg, 3:, 3:]), rtol=1e-15)
+    capsys.readouterr()
+    fuse = ["fuse", str(files / "tracks.csv"), "--cameras", str(written), "--out", str(files / "fused"), "--quiet"]
+    assert exit_code(fuse) == 0
+    fused = load_run(files / "fused")
+    assert fused.structure is not None and np.isfinite(fused.structure.points).all(axis=1).sum() >= 140
 
 
 def test_auto_keeps_the_perspective_model_on_perspective_data(files, capsys):

@@ -8,6 +8,16 @@ Two layouts are read, told apart by the header:
   K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]], rotation R (row-major) and
   translation t with x_cam = R X + t, so P = K [R | t].
 
+The intrinsics + pose layout is also what ``kalmansfm reconstruct --camera perspective``
+(and ``demo --camera perspective``) writes as its ``cameras.csv``, one row per registered
+frame with the K it used, followed by two optional columns that :func:`read_cameras`
+ignores: ``rotation_std_deg``, the RMS per-axis standard deviation of the camera's
+rotation in degrees, and ``centre_std``, that of its centre in world units (both in the
+reconstruction's free-network gauge).  Such a file can be given to ``kalmansfm fuse --cameras``
+as it is.  Writers: :func:`cameras_csv` (projection-matrix layout) and
+:func:`pose_cameras_csv` (intrinsics + pose, optionally with the two standard deviations);
+numbers are the shortest text that reads back to the same float.
+
 Lines starting with ``#`` are comments; other columns are ignored.  Every problem
 raises :class:`~kalmansfm.InvalidInputError` naming the file and the 1-based line:
 missing columns, a frame given twice, a non-number or non-finite entry, a matrix
@@ -24,17 +34,28 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..structure.pinhole import CameraSet
-from ._csv import number
+from ..structure.pinhole import CameraSet, intrinsic_matrices
+from ._csv import csv_text, number
 from .tracks import _floats, _indices
 
-__all__ = ["MATRIX_COLUMNS", "POSE_COLUMNS", "CameraObservations", "cameras_csv", "match_cameras", "read_cameras"]
+__all__ = [
+    "MATRIX_COLUMNS",
+    "POSE_COLUMNS",
+    "POSE_STD_COLUMNS",
+    "CameraObservations",
+    "cameras_csv",
+    "match_cameras",
+    "pose_cameras_csv",
+    "read_cameras",
+]
 
 #: Header of the projection-matrix layout.
 MATRIX_COLUMNS = ("frame",) + tuple(f"p{i}{j}" for i in range(1, 4) for j in range(1, 5))
 #: Header of the intrinsics + pose layout.
 POSE_COLUMNS = ("frame", "fx", "fy", "cx", "cy", "skew") + tuple(f"r{i}{j}" for i in range(1, 4)
                                                                  for j in range(1, 4)) + ("t1", "t2", "t3")
+#: The optional columns after :data:`POSE_COLUMNS` in the cameras.csv of a perspective reconstruction.
+POSE_STD_COLUMNS = ("rotation_std_deg", "centre_std")
 
 # Same limits as CameraSet (a left block this close to singular is not a camera).
 _SINGULAR_RATIO = 1e-12
@@ -112,8 +133,7 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
         if bad.any():
             i = int(np.argmax(bad))
             raise InvalidInputError(f"{file}: line {lines[i]}: fx and fy must be > 0 (pixels); got {fx[i]}, {fy[i]}")
-        K = np.zeros((len(frames), 3, 3))
-        K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2], K[:, 2, 2] = fx, skew, cx, fy, cy, 1.0
+        K = intrinsic_matrices(fx, fy, cx, cy, skew)
         R = values[:, 5:14].reshape(-1, 3, 3)
         off = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
         bad = ~(off <= _ROTATION_TOLERANCE)
@@ -143,6 +163,58 @@ def cameras_csv(cameras: CameraSet) -> str:
     for frame, P in zip(cameras.frames, cameras.matrices):
         lines.append(",".join([str(int(frame))] + [number(x) for x in P.ravel()]))
     return "\n".join(lines) + "\n"
+
+
+def pose_cameras_csv(frames: object, intrinsics: object, rotations: object, translations: object, *,
+                     rotation_std_deg: object | None = None, centre_std: object | None = None) -> str:
+    """Cameras as CSV text in the intrinsics + pose layout, P = K [R | t] (see the module notes).
+
+    Parameters
+    ----------
+    frames : (n,) int — frame number of each camera.
+    intrinsics : (n, 3, 3) — K of each camera; fx, fy, cx, cy and skew are written (K[2] is [0, 0, 1]).
+    rotations : (n, 3, 3) — R, x_cam = R X + t.
+    translations : (n, 3) — t.
+    rotation_std_deg, centre_std : (n,), optional — given together: the columns
+        ``rotation_std_deg,centre_std`` are appended (RMS per-axis standard deviation of
+        the rotation in degrees and of the centre in world units); a non-finite value is an empty cell.
+
+    Returns
+    -------
+    str
+        Header and one row per camera; the K, R and t read back exactly with :func:`read_cameras`.
+
+    Examples
+    --------
+    >>> K = np.array([[[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]])
+    >>> text = pose_cameras_csv([4], K, np.eye(3)[None], [[0.0, 0.0, 5.0]], rotation_std_deg=[0.1],
+    ...                         centre_std=[0.02])
+    >>> text.splitlines()[0].endswith("t1,t2,t3,rotation_std_deg,centre_std")
+    True
+    >>> text.splitlines()[1]
+    '4,500.0,500.0,320.0,240.0,0.0,1.0,0.0,0.0,0.0,1.0,0.0,0.0,0.0,1.0,0.0,0.0,5.0,0.1,0.02'
+    """
+    frame = np.asarray(frames).ravel()
+    K = np.asarray(intrinsics, dtype=np.float64)
+    R = np.asarray(rotations, dtype=np.float64)
+    t = np.asarray(translations, dtype=np.float64)
+    n = len(frame)
+    if K.shape != (n, 3, 3) or R.shape != (n, 3, 3) or t.shape != (n, 3):
+        raise InvalidInputError(f"pose_cameras_csv needs (n, 3, 3) intrinsics and rotations and (n, 3) translations "
+                                f"for the {n} frames; got {K.shape}, {R.shape}, {t.shape}")
+    if (rotation_std_deg is None) != (centre_std is None):
+        raise InvalidInputError("rotation_std_deg and centre_std are written together: give both or neither")
+    columns = [K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 0, 1], *R.reshape(n, 9).T, *t.T]
+    header = POSE_COLUMNS
+    if rotation_std_deg is not None:
+        stds = [np.asarray(v, dtype=np.float64).ravel() for v in (rotation_std_deg, centre_std)]
+        if any(v.shape != (n,) for v in stds):
+            raise InvalidInputError(f"rotation_std_deg and centre_std need one value per frame ({n}); "
+                                    f"got {stds[0].shape}, {stds[1].shape}")
+        columns += stds
+        header = POSE_COLUMNS + POSE_STD_COLUMNS
+    rows = ([str(int(f)), *(number(c[i]) for c in columns)] for i, f in enumerate(frame))
+    return csv_text(header, rows)
 
 
 @dataclass(frozen=True)

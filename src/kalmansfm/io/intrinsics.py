@@ -16,6 +16,7 @@ import numpy as np
 
 from .._validation import check_positive
 from ..errors import InvalidInputError
+from ..structure.pinhole import intrinsic_matrices
 from ._csv import number
 from .tracks import _floats, _indices, _read_csv_rows
 
@@ -23,12 +24,6 @@ __all__ = ["INTRINSICS_COLUMNS", "intrinsics_csv", "intrinsics_from_focal", "rea
 
 #: Header of ``K.csv``.
 INTRINSICS_COLUMNS = ("frame", "fx", "fy", "cx", "cy", "skew")
-
-
-def _matrices(fx: np.ndarray, fy: np.ndarray, cx: np.ndarray, cy: np.ndarray, skew: np.ndarray) -> np.ndarray:
-    K = np.zeros((len(fx), 3, 3))
-    K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2], K[:, 2, 2] = fx, skew, cx, fy, cy, 1.0
-    return K
 
 
 def read_intrinsics(path: str | os.PathLike[str], frames: object) -> np.ndarray:
@@ -68,7 +63,7 @@ def read_intrinsics(path: str | os.PathLike[str], frames: object) -> np.ndarray:
         i = int(np.argmax(bad))
         raise InvalidInputError(f"{file}: line {lines[i]}: fx and fy must be > 0 (pixels; K would be singular); "
                                 f"got {fx[i]}, {fy[i]}")
-    K = _matrices(fx, fy, cx, cy, skew)
+    K = intrinsic_matrices(fx, fy, cx, cy, skew)
     wanted = np.asarray(frames, dtype=np.int64).ravel()
     if len(rows) == 1:
         return np.repeat(K, len(wanted), axis=0)
@@ -100,8 +95,7 @@ def intrinsics_from_focal(focal: float, image_size: tuple[int, int], n_frames: i
     f = check_positive("focal", focal, "pixels")
     width, height = (check_positive("image width", image_size[0], "pixels"),
                      check_positive("image height", image_size[1], "pixels"))
-    one = np.ones(1)
-    return np.repeat(_matrices(f * one, f * one, width / 2 * one, height / 2 * one, 0 * one), n_frames, axis=0)
+    return np.repeat(intrinsic_matrices(f, f, width / 2, height / 2, 0.0), n_frames, axis=0)
 
 
 def intrinsics_csv(frames: object, intrinsics: np.ndarray) -> str:

@@ -19,10 +19,11 @@ import cv2
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..structure.pinhole import CameraSet
 from ..tracking.tracks import Tracks
+from .cameras import read_cameras
 from .frames import quiet_decoders
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
-from .perspective import PerspectiveCameras, read_perspective_cameras
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
 from .summary import SUMMARY_FILE, RunSummary, read_summary
 from .tracks import read_tracks_npz
@@ -52,7 +53,8 @@ class RunFolder:
     ----------
     ground_truth_tracks : (F, P, 2) true positions in the order of ``tracks.track_ids``,
         NaN where not visible (from ``ground_truth_tracks.csv``).
-    cameras : the registered cameras of a perspective reconstruction (``cameras.csv``).
+    cameras : the registered cameras of a perspective reconstruction (``cameras.csv``, read by
+        :func:`~kalmansfm.io.cameras.read_cameras`: P = K [R | t]; ``decompose()`` gives K, R, t and the centres).
     """
 
     path: Path
@@ -66,7 +68,7 @@ class RunFolder:
     fusion_tables: tuple[CsvTable, ...]
     figures: dict[str, Path]
     data_files: tuple[str, ...]
-    cameras: PerspectiveCameras | None = None
+    cameras: CameraSet | None = None
 
     def read_frames(self) -> list[np.ndarray]:
         """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none."""
@@ -154,5 +156,5 @@ def load_run(run_dir: str | Path) -> RunFolder:
                             name.startswith("fusion_tables/") and name.endswith(".csv")),
         figures={name: folder / name for name in RUN_FIGURES if name in listed},
         data_files=tuple(sorted(name for name in listed if "/" not in name and not name.endswith(".png"))),
-        cameras=read_perspective_cameras(folder / "cameras.csv") if "cameras.csv" in listed else None,
+        cameras=read_cameras(folder / "cameras.csv") if "cameras.csv" in listed else None,
     )

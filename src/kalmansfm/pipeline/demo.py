@@ -250,7 +250,7 @@ def run_demo(
                 names += stage_structure(out, reconstruction, tracks.track_ids, uncertainty=uncertainty,
                                          frames=tracks.frames)
             if calibrated is not None:
-                names += stage_perspective(out, calibrated, measured.frames, measured.track_ids,
+                names += stage_perspective(out, calibrated, measured.frames, measured.track_ids, K,
                                            comment=f"kalmansfm demo of {source}")
             if scene is not None:
                 names += stage_ground_truth(out, scene)

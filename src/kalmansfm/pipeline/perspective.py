@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..io.atomic import OutputDirectory
 from ..io.intrinsics import intrinsics_from_focal, read_intrinsics
-from ..io.perspective import perspective_cameras_csv
+from ..io.cameras import pose_cameras_csv
 from ..io.summary import PerspectiveMetrics
 from ..report.figures import camera_path_figure
 from ..structure.perspective import (
@@ -82,13 +82,23 @@ def perspective_metrics(rec: PerspectiveReconstruction, observations: np.ndarray
 
 
 def stage_perspective(out: OutputDirectory, rec: PerspectiveReconstruction, frames: np.ndarray,
-                      track_ids: np.ndarray, *, comment: str, plot: bool = True) -> list[str]:
-    """Stage structure.csv (with covariances), cameras.csv, structure.ply (and reconstruction.png)."""
+                      track_ids: np.ndarray, intrinsics: np.ndarray, *, comment: str, plot: bool = True) -> list[str]:
+    """Stage structure.csv (with covariances), cameras.csv, structure.ply (and reconstruction.png).
+
+    ``cameras.csv`` is in the intrinsics + pose layout of :mod:`kalmansfm.io.cameras` (so that
+    ``kalmansfm fuse --cameras`` reads it): the registered frames' K (from the (F, 3, 3)
+    (or one (3, 3)) ``intrinsics`` the reconstruction used), R and t, then ``rotation_std_deg`` and ``centre_std``.
+    """
     names = stage_points(out, track_ids, rec.points, rec.point_covariances, rec.views, rec.point_status,
                          rec.point_reprojection_rms, comment=f"{comment}; covariances in the {COVARIANCE_GAUGE}")
-    out.write_text("cameras.csv", perspective_cameras_csv(frames, rec))
+    reg = rec.registered
+    K = np.broadcast_to(intrinsics, (len(reg), 3, 3))
+    out.write_text("cameras.csv", pose_cameras_csv(
+        np.asarray(frames)[reg], K[reg], rec.rotations[reg], rec.translations[reg],
+        rotation_std_deg=np.degrees(rms_std(rec.camera_covariances[reg, :3, :3])),
+        centre_std=rms_std(rec.camera_covariances[reg, 3:, 3:])))
     names.append("cameras.csv")
-    ok, reg = rec.reconstructed, rec.registered
+    ok = rec.reconstructed
     if plot and ok.any() and reg.any():
         out.write_bytes("reconstruction.png", camera_path_figure(
             rec.centres[reg], np.asarray(frames)[reg].tolist(), rec.points[ok], rms_std(rec.point_covariances[ok])))

@@ -209,7 +209,7 @@ def run_reconstruct(
     with output_directory(out_dir, inputs=inputs) as out:
         with clock.step("writing"):
             if use_perspective:
-                names = stage_perspective(out, rec, tracks.frames, tracks.track_ids,  # type: ignore[arg-type]
+                names = stage_perspective(out, rec, tracks.frames, tracks.track_ids, K,  # type: ignore[arg-type]
                                           comment=f"kalmansfm {__version__} from {name}", plot=plot)
             else:
                 names = stage_structure(out, reconstruction, tracks.track_ids,  # type: ignore[arg-type]

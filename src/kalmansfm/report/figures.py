@@ -267,13 +267,19 @@ def shape_views(
     return fig
 
 
-def camera_rotations(motion: CameraMotion) -> tuple[np.ndarray, np.ndarray]:
+def camera_rotations(motion: CameraMotion, matrices: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each frame's camera rotation relative to the first frame.
 
     The rows ``i``, ``j`` of the factorization, with ``k = i × j``, form the
     camera rotation ``R_f`` (world → camera f) up to noise and scale; they are
     snapped to the nearest rotation.  ``R_f R_0^T`` is then decomposed into
     angles about the camera's x (tilt), y (pan) and optical (roll) axes.
+
+    Parameters
+    ----------
+    motion : CameraMotion
+    matrices : (F, 3, 3), optional
+        ``camera_rotation_matrices(motion.rows)`` when the caller has it already.
 
     Returns
     -------
@@ -282,16 +288,19 @@ def camera_rotations(motion: CameraMotion) -> tuple[np.ndarray, np.ndarray]:
     """
     from scipy.spatial.transform import Rotation
 
-    rotations = camera_rotation_matrices(motion.rows)
+    rotations = camera_rotation_matrices(motion.rows) if matrices is None else matrices
     relative = rotations @ rotations[0].T
     angles = np.degrees(np.unwrap(Rotation.from_matrix(relative).as_euler("xyz"), axis=0))
     total = np.degrees(Rotation.from_matrix(relative).magnitude())
     return angles, total
 
 
-def camera_rotation_figure(motion: CameraMotion) -> bytes:
-    """Recovered camera rotation per frame (relative to the first frame) and translation."""
-    angles, total = camera_rotations(motion)
+def camera_rotation_figure(motion: CameraMotion, rotations: tuple[np.ndarray, np.ndarray] | None = None) -> bytes:
+    """Recovered camera rotation per frame (relative to the first frame) and translation.
+
+    ``rotations`` is :func:`camera_rotations` of ``motion`` when the caller has it already.
+    """
+    angles, total = camera_rotations(motion) if rotations is None else rotations
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.2))
     for k, name in enumerate(("tilt (about image x)", "pan (about image y)", "roll (about optical axis)")):
         left.plot(motion.frames, angles[:, k], marker=".", label=name)

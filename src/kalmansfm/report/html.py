@@ -448,7 +448,8 @@ def _by_uncertainty(run: RunFolder) -> bool:
     return run.structure is not None and run.structure.covariances is not None and run.summary.structure is None
 
 
-def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray | None) -> dict[str, Any]:
+def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray | None,
+                   motion_rotations: np.ndarray | None) -> dict[str, Any]:
     reliable = structure.reliable
     core = structure.points[reliable] if reliable.any() else structure.points
     centre, half = figures.robust_half_width(core)
@@ -470,14 +471,16 @@ def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray
         "cameras": [],
         "camera_frames": [],
     }
-    if run.motion is not None and len(run.motion.frames):
-        payload["cameras"] = np.round(camera_rotation_matrices(run.motion.rows), 6).tolist()
+    if motion_rotations is not None:
+        payload["cameras"] = np.round(motion_rotations, 6).tolist()
         payload["camera_frames"] = run.motion.frames.tolist()
     if run.cameras is not None and len(run.cameras.frames):
-        payload["cameras"] = np.round(run.cameras.rotations, 6).tolist()
+        pose = run.cameras.decompose()
+        centres = pose.centers - centre
+        payload["cameras"] = np.round(pose.rotations, 6).tolist()
         payload["camera_frames"] = run.cameras.frames.tolist()
-        payload["camera_centres"] = np.round(run.cameras.centres - centre, 6).tolist()
-        payload["radius"] = max(radius, float(np.linalg.norm(run.cameras.centres - centre, axis=1).max()) / 1.6)
+        payload["camera_centres"] = np.round(centres, 6).tolist()
+        payload["radius"] = max(radius, float(np.linalg.norm(centres, axis=1).max()) / 1.6)
     return payload
 
 
@@ -496,7 +499,7 @@ def _matched_truth(run: RunFolder) -> tuple[np.ndarray, np.ndarray, np.ndarray] 
     return run.structure.points[in_structure[order]], run.ground_truth_points.points[in_truth[order]], common[order]
 
 
-def _section_shape(run: RunFolder) -> str | None:
+def _section_shape(run: RunFolder, motion_rotations: np.ndarray | None) -> str | None:
     structure = run.structure
     if structure is None or not len(structure.points):
         if "structure.png" in run.figures:
@@ -508,7 +511,7 @@ def _section_shape(run: RunFolder) -> str | None:
     if matched is not None and len(matched[2]) == len(structure.track_ids):
         # the truth moved onto the recovered points by the inverse of the run's alignment
         truth_here = run.summary.truth.alignment.invert(matched[1])  # type: ignore[union-attr]
-    payload = json.dumps(_shape_payload(run, structure, truth_here), allow_nan=False)
+    payload = json.dumps(_shape_payload(run, structure, truth_here, motion_rotations), allow_nan=False)
     truth_toggle = (
         '<label><input id="view3d-truth" type="checkbox" checked> ground truth (rings, aligned)</label>'
         if truth_here is not None
@@ -561,12 +564,13 @@ def _section_shape(run: RunFolder) -> str | None:
     return "".join(parts)
 
 
-def _section_motion(run: RunFolder) -> str | None:
-    if run.motion is None or len(run.motion.frames) == 0:
+def _section_motion(run: RunFolder, motion_rotations: np.ndarray | None) -> str | None:
+    if run.motion is None or motion_rotations is None:
         return None
-    _, total = figures.camera_rotations(run.motion)
+    rotations = figures.camera_rotations(run.motion, motion_rotations)
+    total = rotations[1]
     return _figure(
-        figures.camera_rotation_figure(run.motion),
+        figures.camera_rotation_figure(run.motion, rotations),
         "Camera rotation recovered per frame, relative to the first frame (rows i, j of the motion matrix "
         f"and k = i × j, snapped to the nearest rotation); largest total rotation {float(total.max()):.2f}°. "
         "Right: the image translation of the shape's centroid.",
@@ -722,6 +726,9 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         Show a progress bar (stderr) while frames are drawn.
     """
     frames = run.read_frames()
+    # the factorization's camera rotations, computed once for the 3-D view and the motion section
+    motion_rotations = (camera_rotation_matrices(run.motion.rows)
+                        if run.motion is not None and len(run.motion.frames) else None)
     candidates = [
         ("parameters", "Parameters", lambda: _section_parameters(run)),
         ("sequence", "Sequence with tracks and gates", lambda: _section_sequence(run, frames, progress)),
@@ -730,8 +737,8 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         ("factorization", "Factorization", lambda: _section_factorization(run)),
         ("fusion", "Structure fusion with known cameras", lambda: _section_fusion(run)),
         ("perspective", "Perspective reconstruction", lambda: _section_perspective(run)),
-        ("shape", "Recovered 3D shape", lambda: _section_shape(run)),
-        ("motion", "Recovered camera motion", lambda: _section_motion(run)),
+        ("shape", "Recovered 3D shape", lambda: _section_shape(run, motion_rotations)),
+        ("motion", "Recovered camera motion", lambda: _section_motion(run, motion_rotations)),
         ("ground-truth", "Comparison with ground truth", lambda: _section_ground_truth(run)),
         ("tables", "Tables", lambda: _section_tables(run)),
         ("files", "Files", lambda: _section_files(run)),

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_count, check_positive
-from ..structure.pinhole import CameraSet, project_points
+from ..structure.pinhole import CameraSet, intrinsic_matrices, project_points
 from ._arc import arc_centres, look_at, mismatches
 
 __all__ = ["KnownCameraScene", "known_camera_scene"]
@@ -92,7 +92,7 @@ def known_camera_scene(
     centres = arc_centres(angles, 6.0, 0.5)
     R = look_at(centres, np.zeros((v, 3)), up=(0.0, 1.0, 0.0))  # aimed at the origin, image y along +Y
     t = -(R @ centres[:, :, None])[:, :, 0]
-    K = np.array([[_FOCAL, 0.0, _IMAGE_SIZE[0] / 2], [0.0, _FOCAL, _IMAGE_SIZE[1] / 2], [0.0, 0.0, 1.0]])
+    K = intrinsic_matrices(_FOCAL, _FOCAL, _IMAGE_SIZE[0] / 2, _IMAGE_SIZE[1] / 2, 0.0)[0]
     cameras = CameraSet.from_pose(K, R, t)
     clean = project_points(cameras, X).pixels
     obs = clean + rng.normal(scale=sigma, size=clean.shape)

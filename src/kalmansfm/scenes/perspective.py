@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_count, check_positive
+from ..structure.pinhole import intrinsic_matrices
 from ._arc import arc_centres, look_at, mismatches
 
 __all__ = ["PerspectiveScene", "perspective_scene"]
@@ -126,7 +127,7 @@ def perspective_scene(
         targets = np.zeros((F, 3))
     # image y pointing down (world −Y up), each camera aimed a little off the target
     rotations = look_at(centres, targets + rng.normal(0.0, 0.05, (F, 3)), up=(0.0, -1.0, 0.0))
-    K = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+    K = intrinsic_matrices(f, f, width / 2.0, height / 2.0, 0.0)[0]
     x_cam = np.einsum("fij,fpj->fpi", rotations, X[None] - centres[:, None])
     clean = f * x_cam[..., :2] / x_cam[..., 2:3] + K[:2, 2]
     obs = clean + rng.normal(scale=sigma, size=clean.shape)

@@ -13,6 +13,7 @@ from scipy import stats
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from .._validation import LabelledEnum, as_float_array, check_count, check_positive
+from .pinhole import camera_centres
 from .points import PointStatus
 
 __all__ = [
@@ -160,7 +161,7 @@ class PerspectiveReconstruction:
     @property
     def centres(self) -> np.ndarray:
         """(F, 3) camera centres -Rᵀ t (NaN for unregistered frames)."""
-        return -np.einsum("fji,fj->fi", self.rotations, self.translations)
+        return camera_centres(self.rotations, self.translations)
 
 
 def validate_tracks_and_intrinsics(observations: object, intrinsics: object) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ from .calibrated import (
     frame_runs,
     residual_rms_per_point,
 )
-from .pinhole import CameraSet, triangulate_points
+from .pinhole import CameraSet, camera_centres, triangulate_points
 from .point_fusion import fuse
 from .points import PointStatus
 
@@ -246,7 +246,7 @@ class _Incremental:
             inl = inl.ravel()
             rvec, tvec = cv2.solvePnPRefineLM(X[inl], x[inl], np.eye(3), None, rvec, tvec)
             R = cv2.Rodrigues(rvec)[0]
-            self.R[f], self.C[f] = R, -R.T @ tvec.ravel()
+            self.R[f], self.C[f] = R, camera_centres(R, tvec.ravel())
             self.frame_status[f] = FrameStatus.REGISTERED
             outliers = np.setdiff1d(np.arange(len(tracks)), inl)
             self.inlier[f, tracks[outliers]] = False

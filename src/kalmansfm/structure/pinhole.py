@@ -50,7 +50,9 @@ __all__ = [
     "Projection",
     "RefinedPoints",
     "Triangulation",
+    "camera_centres",
     "decompose_projection",
+    "intrinsic_matrices",
     "project_each",
     "project_points",
     "projection_jacobians",
@@ -72,6 +74,51 @@ _MAX_CONDITION = 1e12
 # fraction of (1 + cost); a point is "converged" once it is below _CONVERGED.
 _STOP_DECREMENT = 1e-18
 _CONVERGED = 1e-6
+
+
+def intrinsic_matrices(fx: object, fy: object, cx: object, cy: object, skew: object) -> np.ndarray:
+    """Intrinsic matrices K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] from their five numbers.
+
+    Parameters
+    ----------
+    fx, fy, cx, cy, skew : scalars or (n,) arrays (broadcast together) — focal lengths,
+        principal point and skew, in pixels.  Not validated: the caller checks fx, fy > 0.
+
+    Returns
+    -------
+    (n, 3, 3) float64 — n = 1 for scalars.
+
+    Examples
+    --------
+    >>> intrinsic_matrices(800.0, 810.0, 320.0, 240.0, 0.5)[0].tolist()
+    [[800.0, 0.5, 320.0], [0.0, 810.0, 240.0], [0.0, 0.0, 1.0]]
+    """
+    fx, fy, cx, cy, skew = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, dtype=np.float64))
+                                                 for v in (fx, fy, cx, cy, skew)))
+    K = np.zeros((len(fx), 3, 3))
+    K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2], K[:, 2, 2] = fx, skew, cx, fy, cy, 1.0
+    return K
+
+
+def camera_centres(rotations: object, translations: object) -> np.ndarray:
+    """Camera centres C = -Rᵀ t of poses with x_cam = R X + t (NaN poses give NaN centres).
+
+    Parameters
+    ----------
+    rotations : (..., 3, 3).
+    translations : (..., 3).
+
+    Returns
+    -------
+    (..., 3) float64.
+
+    Examples
+    --------
+    >>> camera_centres(np.eye(3), [0.0, 0.0, 2.0]).tolist()
+    [-0.0, -0.0, -2.0]
+    """
+    return -np.einsum("...ji,...j->...i", np.asarray(rotations, dtype=np.float64),
+                      np.asarray(translations, dtype=np.float64))
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
@@ -250,7 +297,7 @@ class CameraPose:
     @property
     def centers(self) -> np.ndarray:
         """(V, 3) camera centres -Rᵀ t."""
-        return -np.einsum("vji,vj->vi", self.rotations, self.translations)
+        return camera_centres(self.rotations, self.translations)
 
 
 def decompose_projection(matrices: object) -> CameraPose:

@@ -5,7 +5,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
-from kalmansfm.io.cameras import MATRIX_COLUMNS, POSE_COLUMNS, cameras_csv, match_cameras, read_cameras
+from kalmansfm.io.cameras import (
+    MATRIX_COLUMNS,
+    POSE_COLUMNS,
+    POSE_STD_COLUMNS,
+    cameras_csv,
+    match_cameras,
+    pose_cameras_csv,
+    read_cameras,
+)
 from kalmansfm.structure.pinhole import CameraSet
 
 R = Rotation.from_euler("xyz", [0.1, -0.2, 0.3]).as_matrix()
@@ -36,6 +44,39 @@ def test_matrix_layout_round_trips_exactly(tmp_path):
     back = read_cameras(f)
     np.testing.assert_array_equal(back.matrices, cams.matrices)
     np.testing.assert_array_equal(back.frames, cams.frames)
+
+
+def test_pose_layout_with_the_std_columns_round_trips_k_r_t(tmp_path):
+    rng = np.random.default_rng(3)
+    R = Rotation.random(3, random_state=4).as_matrix()
+    t = rng.normal(size=(3, 3)) * [1e-3, 1.0, 1e3]
+    K = np.array([[[800.0 + 10 * v, 0.25 * v, 320.1], [0.0, 790.0 + v, 240.7], [0.0, 0.0, 1.0]] for v in range(3)])
+    f = tmp_path / "cameras.csv"
+    f.write_text(pose_cameras_csv([9, 4, 6], K, R, t, rotation_std_deg=[0.1, np.nan, 0.3],
+                                  centre_std=[1e-3, 2e-3, 3e-3]))
+    lines = f.read_text().splitlines()
+    assert lines[0] == ",".join(POSE_COLUMNS + POSE_STD_COLUMNS)
+    assert lines[2].endswith(",,0.002")  # no value is an empty cell
+    table = np.genfromtxt(f, delimiter=",", names=True)
+    np.testing.assert_array_equal(table["centre_std"], [1e-3, 2e-3, 3e-3])
+    back = read_cameras(f)
+    assert back.frames.tolist() == [9, 4, 6]
+    # the same product as CameraSet.from_pose, from the very same K, R and t
+    np.testing.assert_array_equal(back.matrices, K @ np.concatenate([R, t[:, :, None]], axis=2))
+    np.testing.assert_allclose(back.matrices, CameraSet.from_pose(K, R, t).matrices, rtol=1e-15, atol=1e-12)
+    plain = pose_cameras_csv([1], K[:1], R[:1], t[:1])
+    assert plain.splitlines()[0] == ",".join(POSE_COLUMNS)
+
+
+@pytest.mark.parametrize("extra, message", [
+    ({"rotation_std_deg": [0.1]}, "give both or neither"),
+    ({"rotation_std_deg": [0.1, 0.2], "centre_std": [0.1]}, "one value per frame"),
+])
+def test_pose_writer_refuses_mismatched_columns(extra, message):
+    with pytest.raises(InvalidInputError, match=message):
+        pose_cameras_csv([1], np.eye(3)[None], np.eye(3)[None], np.zeros((1, 3)), **extra)
+    with pytest.raises(InvalidInputError, match="needs"):
+        pose_cameras_csv([1, 2], np.eye(3)[None], np.eye(3)[None], np.zeros((1, 3)))
 
 
 def bad_pose(index, value):

@@ -8,7 +8,9 @@ from kalmansfm.errors import InvalidInputError
 from kalmansfm.structure import PointStatus
 from kalmansfm.structure.pinhole import (
     CameraSet,
+    camera_centres,
     decompose_projection,
+    intrinsic_matrices,
     project_points,
     projection_jacobians,
     refine_points,
@@ -47,6 +49,20 @@ def test_decomposition_recovers_k_r_t_and_the_sign_of_mirrored_cameras():
     np.testing.assert_allclose(pose.scales, scale, rtol=1e-12)
     np.testing.assert_allclose(np.linalg.det(pose.rotations), 1.0)
     np.testing.assert_allclose(CameraSet.from_matrices(P).centers, pose.centers, atol=1e-9)
+
+
+def test_one_k_builder_and_one_centre_formula_agree_with_the_camera_set():
+    cams = ring_cameras(5)
+    pose = cams.decompose()
+    K = pose.intrinsics
+    built = intrinsic_matrices(K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 0, 1])
+    np.testing.assert_array_equal(built, K)
+    assert intrinsic_matrices(700.0, 700.0, 320.0, 240.0, 0.0).shape == (1, 3, 3)
+    # -Rᵀ t, batched or one pose, is the null vector of P
+    C = camera_centres(pose.rotations, pose.translations)
+    np.testing.assert_allclose(C, cams.centers, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(camera_centres(pose.rotations[2], pose.translations[2]), C[2])
+    assert np.isnan(camera_centres(np.full((3, 3), np.nan), np.zeros(3))).all()
 
 
 def test_projection_depths_are_camera_z_and_flip_with_the_sign_of_p():
