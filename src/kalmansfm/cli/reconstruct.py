@@ -11,6 +11,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..pipeline import run_reconstruct
 from ..pipeline.perspective import CAMERA_MODELS
+from ..structure.factorization import DEFAULT_MAX_ITERATIONS
 from ..structure.perspective import PERSPECTIVE_METHODS, PerspectiveSettings
 
 
@@ -58,7 +59,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         help="factorize RTS-smoothed positions (needs the tracker's tracks.npz). Default: smooth a tracks.npz "
         "that is not smoothed yet, read a CSV as it is",
     )
-    p.add_argument("--max-iterations", type=int, default=500, help="cap on the missing-data refinement iterations")
+    p.add_argument("--max-iterations", type=int, default=DEFAULT_MAX_ITERATIONS, help="cap on the missing-data refinement iterations")
     p.add_argument("--no-plot", action="store_true", help="do not draw structure.png")
     p.set_defaults(run=run)
 
