@@ -21,7 +21,7 @@ from ..io.frames import FrameSource, read_frames, stage_frames
 from ..io.intrinsics import intrinsics_from_focal
 from ..io.summary import RunSource, RunSummary, run_source
 from ..report.html import build_report
-from ..scenes import Scene, render_scene
+from ..scenes import DEFAULT_SCENE_FRAMES, DEFAULT_SCENE_SEED, Scene, render_scene
 from ..scenes.files import scene_description, stage_ground_truth
 from ..structure import PointUncertainty, Reconstruction
 from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
@@ -74,8 +74,8 @@ def _load_frames(sequence: FrameSource) -> list[np.ndarray]:
 def demo_source(
     sequence: FrameSource | None,
     *,
-    seed: int = 0,
-    n_frames: int = 30,
+    seed: int = DEFAULT_SCENE_SEED,
+    n_frames: int = DEFAULT_SCENE_FRAMES,
     points: np.ndarray | None = None,
     track_ids: np.ndarray | None = None,
     settings: TrackerSettings | None = None,
@@ -112,8 +112,8 @@ def run_demo(
     out_dir: str | os.PathLike[str],
     *,
     input: str | os.PathLike[str] | None = None,
-    seed: int = 0,
-    n_frames: int = 30,
+    seed: int = DEFAULT_SCENE_SEED,
+    n_frames: int = DEFAULT_SCENE_FRAMES,
     points: np.ndarray | None = None,
     track_ids: np.ndarray | None = None,
     settings: TrackerSettings | None = None,
