@@ -18,7 +18,7 @@ from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
 from ..structure.point_fusion import FusedStructure, FusionSettings, fuse_with_settings
 from ..structure.points import PointStatus, rms_std
-from .cluster import ScatteringExecutor, check_workers, dask_client
+from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .stage import Stopwatch, stage_points, stage_summary
 
 __all__ = ["FuseRun", "run_fuse"]
@@ -124,7 +124,7 @@ def run_fuse(
     (30, ['history.csv', 'rejected.csv', 'structure.csv'])
     """
     settings = replace(settings or FusionSettings(), history=True)
-    check_workers(n_workers)
+    check_cluster(scheduler, n_workers)
     inputs = [tracks_path, cameras_path]
     check_output_directory(out_dir, inputs=inputs)
     clock = Stopwatch()
