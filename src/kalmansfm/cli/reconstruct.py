@@ -13,6 +13,7 @@ from ..pipeline import run_reconstruct
 from ..pipeline.perspective import CAMERA_MODELS
 from ..structure.factorization import DEFAULT_MAX_ITERATIONS
 from ..structure.perspective import PERSPECTIVE_METHODS, PerspectiveSettings
+from ._options import print_warnings
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -87,8 +88,7 @@ def run(args: argparse.Namespace) -> int:
           + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")
     print(f"rank-3 residual: {s.residual_rms_px:.4f} px RMS")
-    for note in result.summary.all_warnings:
-        print(f"warning: {note}")
+    print_warnings(result.summary)
     print(f"wrote {args.out}")
     return 0
 
@@ -102,6 +102,5 @@ def _print_perspective(result) -> None:
     print(f"intrinsics: {p.intrinsics}")
     print(f"inliers: {p.inliers} of {p.observations} observations; pixel noise sigma {p.pixel_std_px:.3g} px; "
           f"reprojection RMS {p.reprojection_rms_px:.3g} px")
-    for note in result.summary.all_warnings:
-        print(f"warning: {note}")
+    print_warnings(result.summary)
     print(f"wrote {result.out_dir}")

@@ -293,7 +293,7 @@ def describe(run: DemoRun) -> str:
         if truth is not None and truth.shape_error_pct is not None:
             line += f"; shape error {truth.shape_error_pct:.2f} % of the object radius"
         lines.append(line)
-    lines.extend(f"warning: {w}" for w in s.all_warnings)
+    lines.extend(s.warning_lines())
     if s.total_s is not None:
         extra = f" (and {run.report_s:.2f} s to build the report)" if run.report_s is not None else ""
         lines.append(f"time: {s.total_s:.2f} s{extra}")

@@ -140,7 +140,6 @@ def run_fuse(
         more = f", … ({data.frames_without_camera.size} in all)" if data.frames_without_camera.size > 8 else ""
         warnings.append(f"frames of {Path(tracks_path).name} without a camera in {Path(cameras_path).name} "
                         f"were skipped: {shown}{more}")
-        log.warning("warning: %s", warnings[-1])
     log.info("fusing %d tracks over %d views (%s)", data.observations.shape[1], len(data.cameras), settings.method)
     with clock.step("fusion"):
         if scheduler is None and n_workers is None:
