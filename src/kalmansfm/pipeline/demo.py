@@ -66,11 +66,6 @@ class DemoRun:
     perspective: PerspectiveReconstruction | None = None
 
 
-def _load_frames(sequence: FrameSource) -> list[np.ndarray]:
-    frames = [np.asarray(f) for f in sequence]
-    return [f if f.dtype == np.uint8 else np.clip(np.rint(f), 0, 255).astype(np.uint8) for f in frames]
-
-
 def demo_source(
     sequence: FrameSource | None,
     *,
@@ -188,7 +183,7 @@ def run_demo(
         else:
             sequence = read_frames(input)
             made_from = demo_source(sequence, **options)
-            frames = _load_frames(sequence)
+            frames = list(sequence)  # FrameSource yields (H, W) uint8 grey frames
             source = str(input)
     with clock.step("tracking"):
         tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
