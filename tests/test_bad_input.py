@@ -169,8 +169,9 @@ CASES = [
     ("batch", "{d}/empty --out {out}", "empty holds no image files"),
     ("batch", "{d}/one_frame --out {out}", "one_frame holds 1 image(s)"),
     ("batch", "scene:1 --out {out} --scheduler notaurl", "cannot use the Dask scheduler 'notaurl'"),
-    ("batch", "scene:1 --out {out} --workers 0", "--workers must be >= 1; got 0"),
-    ("batch", "scene:1 --out {out} --workers -2", "--workers must be >= 1"),
+    ("batch", "scene:1 --out {out} --workers 0", "--workers must be an integer >= 1; got 0"),
+    ("batch", "scene:1 --out {out} --workers -2", "--workers must be an integer >= 1"),
+    ("batch", "scene:1 --out {out} --workers 2 --scheduler tcp://nowhere:1", "--workers (a local cluster) or --scheduler (an existing one), not both"),
     ("batch", "scene:1 --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
     # --- tables ------------------------------------------------------------------------------
     ("tables", "--task 0", "unknown task 0; tasks 1-6"),
@@ -363,7 +364,7 @@ def test_bad_input_is_refused_in_one_line_and_nothing_is_written(
         ("report {d}/run_bad_frame --quiet", "frame_000.png: cannot be read as a PNG image"),
         ("track {d}/broken.mp4 --out {out} --quiet", "broken.mp4 is not a decodable video"),
         ("reconstruct {d}/tracks_nan.csv --out {out} --quiet", "line 3: y must be finite"),
-        ("batch scene:1 --out {out} --workers 0 --quiet", "--workers must be >= 1"),
+        ("batch scene:1 --out {out} --workers 0 --quiet", "--workers must be an integer >= 1"),
         ("track {d}/good --out {out} --window 4", "argument --window"),
         ("reconstruct {d}/complex.npz --out {out}", "positions must be a numeric"),  # no ComplexWarning
         ("consistency --task 2 --runs 0", "runs must be an integer >= 2; got 0"),  # no progress bar first

@@ -91,3 +91,21 @@ def test_run_task7_batch_reaches_about_a_metre():
 def test_task7_options_reject_unknown_method():
     with pytest.raises(SystemExit):
         _task7_args("--method", "ekf")
+
+
+def test_task7_default_method_is_one_constant_shown_by_help(main, capsys):
+    from kalmansfm.experiments.consistency import run_consistency, task7_consistency
+    from kalmansfm.experiments.tables import fusion_table as table_of
+    from kalmansfm.structure.landmark import TASK7_DEFAULT_METHOD
+
+    with pytest.raises(SystemExit):
+        main(["consistency", "--help"])
+    assert f"Task 7 estimator (default: {TASK7_DEFAULT_METHOD})" in " ".join(capsys.readouterr().out.split())
+    with pytest.raises(SystemExit):
+        main(["tables", "--help"])
+    assert f"(default: {TASK7_DEFAULT_METHOD})" in " ".join(capsys.readouterr().out.split())
+    assert main(["consistency", "--task", "7", "--runs", "2", "--quiet"]) == 0
+    assert f"method {TASK7_DEFAULT_METHOD}:" in capsys.readouterr().out
+    assert run_consistency(7, runs=2).method == TASK7_DEFAULT_METHOD
+    for f in (task7_consistency, table_of):
+        assert TASK7_DEFAULT_METHOD in (f.__kwdefaults__ or {}).values() or TASK7_DEFAULT_METHOD in f.__defaults__

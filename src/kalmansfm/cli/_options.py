@@ -15,8 +15,9 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 
 from ..errors import KalmanSfmError
+from ..io.summary import RunSummary
 
-__all__ = ["HelpFormatter", "as_typed"]
+__all__ = ["HelpFormatter", "as_typed", "print_warnings"]
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -80,3 +81,15 @@ def as_typed(names: Mapping[str, str]) -> Iterator[None]:
             if message.startswith(name) and message[len(name):len(name) + 1] in (" ", ":", ";", ","):
                 raise type(exc)(option + message[len(name):]) from None
         raise
+
+
+def print_warnings(summary: RunSummary) -> None:
+    """Print a run's warnings to stdout, one ``warning: …`` line each, as every command shows them.
+
+    Parameters
+    ----------
+    summary : RunSummary
+        The finished run's summary; :meth:`~kalmansfm.io.summary.RunSummary.warning_lines` makes the lines.
+    """
+    for line in summary.warning_lines():
+        print(line)

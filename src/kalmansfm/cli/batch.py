@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..errors import InvalidInputError
 from ..pipeline.batch import run_batch
+from ..pipeline.cluster import check_cluster
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -33,8 +33,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     """Run the batch; print the summary table; exit 1 if any sequence failed."""
-    if args.workers is not None and args.workers < 1:
-        raise InvalidInputError(f"--workers must be >= 1; got {args.workers}")
+    check_cluster(args.scheduler, args.workers, scheduler_name="--scheduler", workers_name="--workers")
     result = run_batch(
         args.sequences,
         args.out,

@@ -11,11 +11,21 @@ from tqdm import tqdm
 from ..errors import InvalidInputError
 from ..experiments.consistency import SPACES, ConsistencyResult, run_consistency
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
-from ..structure.landmark import METHODS
+from ..structure.landmark import TASK7_DEFAULT_METHOD
+from ..structure.point_fusion import FUSION_METHODS
 from ._options import as_typed
 
 _AXES = {1: ["distance"], 3: ["x", "y", "z"]}
 _STATE_AXES = ["x/z", "y/z", "1/z"]
+
+
+class _StoreMethod(argparse.Action):
+    """Store ``--method`` and note that it was given (its default is Task 7's, shown by ``--help``)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        setattr(namespace, self.dest, values)
+        namespace.method_given = True
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -29,7 +39,8 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--task", type=int, choices=[2, 7], required=True, help="Task 2 (1D fusion) or Task 7 (landmark)")
-    p.add_argument("--method", choices=METHODS, default=None, help="Task 7 estimator (default: pairs)")
+    p.add_argument("--method", choices=FUSION_METHODS, default=TASK7_DEFAULT_METHOD, action=_StoreMethod,
+                   help="Task 7 estimator")
     p.add_argument("--runs", type=int, default=300, help="number of Monte Carlo runs N (>= 2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated noise")
     p.add_argument("--focal", type=float, default=DEFAULT_FOCAL, help="Task 7 focal length, pixels")
@@ -42,7 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "filter's own state, the inverse depth in the first camera frame",
     )
     p.add_argument("--format", choices=["text", "csv"], default="text", help="summary text or per-iteration CSV")
-    p.set_defaults(run=run)
+    p.set_defaults(run=run, method_given=False)
 
 
 def _axes(r: ConsistencyResult) -> list[str]:
@@ -89,7 +100,7 @@ def format_csv(r: ConsistencyResult) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.task == 2 and args.method is not None:
+    if args.task == 2 and args.method_given:
         raise InvalidInputError("--method applies to --task 7 only (task 2 is plain Kalman fusion)")
     if args.task == 2 and args.space != "point":
         raise InvalidInputError("--space applies to --task 7 only")
@@ -105,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with as_typed({"runs": "--runs", "seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-noise"}):
             result = run_consistency(
-                args.task, args.method, args.runs, args.seed, args.focal, args.pixel_noise, progress=progress,
+                args.task, args.method if args.task == 7 else None, args.runs, args.seed, args.focal, args.pixel_noise, progress=progress,
                 space=args.space.replace("-", "_"),
             )
     finally:

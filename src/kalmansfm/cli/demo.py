@@ -6,6 +6,7 @@ import argparse
 import webbrowser
 
 from ..pipeline import describe, run_demo
+from ..scenes import DEFAULT_SCENE_FRAMES, DEFAULT_SCENE_SEED
 from ..tracking import TrackerSettings
 from ..tracking.settings import MATCHERS
 from ._options import as_typed
@@ -29,8 +30,8 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         help="your own sequence (folder of images, glob or video) instead of the built-in scene; "
         "corners are detected automatically and there is no ground-truth section",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the built-in scene")
-    p.add_argument("--frames", type=int, default=30, help="number of frames of the built-in scene")
+    p.add_argument("--seed", type=int, default=DEFAULT_SCENE_SEED, help="seed of the built-in scene")
+    p.add_argument("--frames", type=int, default=DEFAULT_SCENE_FRAMES, help="number of frames of the built-in scene")
     p.add_argument(
         "--smooth",
         action=argparse.BooleanOptionalAction,

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import InvalidInputError
 from ..pipeline import run_fuse
+from ..pipeline.cluster import check_cluster
 from ..structure.point_fusion import FUSION_METHODS, FusionSettings
+from ._options import print_warnings
 
 _DEFAULTS = FusionSettings()
 
@@ -58,10 +59,8 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 
 def run(args: argparse.Namespace) -> int:
-    pixel_std = None if args.pixel_std == "auto" else args.pixel_std
-    if args.scheduler is not None and args.workers is not None:
-        raise InvalidInputError("give --workers (a local cluster) or --scheduler (an existing one), not both")
-    settings = FusionSettings(args.method, pixel_std, args.outlier_prob, True, args.chunk_points)
+    check_cluster(args.scheduler, args.workers, scheduler_name="--scheduler", workers_name="--workers")
+    settings = FusionSettings(args.method, args.pixel_std, args.outlier_prob, True, args.chunk_points)
     result = run_fuse(args.tracks, args.cameras, args.out, settings, scheduler=args.scheduler,
                       n_workers=args.workers, plot=not args.no_plot)
     f = result.summary.fusion
@@ -74,5 +73,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"pixel noise: {f.pixel_std_px:.4g} px ({how})")
     if f.reprojection_rms_px is not None:
         print(f"reprojection RMS: {f.reprojection_rms_px:.4g} px  median point uncertainty: {f.median_std:.4g}")
+    print_warnings(result.summary)
     print(f"wrote {args.out}")
     return 0

@@ -11,7 +11,9 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..pipeline import run_reconstruct
 from ..pipeline.perspective import CAMERA_MODELS
+from ..structure.factorization import DEFAULT_MAX_ITERATIONS
 from ..structure.perspective import PERSPECTIVE_METHODS, PerspectiveSettings
+from ._options import print_warnings
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -58,7 +60,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         help="factorize RTS-smoothed positions (needs the tracker's tracks.npz). Default: smooth a tracks.npz "
         "that is not smoothed yet, read a CSV as it is",
     )
-    p.add_argument("--max-iterations", type=int, default=500, help="cap on the missing-data refinement iterations")
+    p.add_argument("--max-iterations", type=int, default=DEFAULT_MAX_ITERATIONS, help="cap on the missing-data refinement iterations")
     p.add_argument("--no-plot", action="store_true", help="do not draw structure.png")
     p.set_defaults(run=run)
 
@@ -86,8 +88,7 @@ def run(args: argparse.Namespace) -> int:
           + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")
     print(f"rank-3 residual: {s.residual_rms_px:.4f} px RMS")
-    for note in result.summary.all_warnings:
-        print(f"warning: {note}")
+    print_warnings(result.summary)
     print(f"wrote {args.out}")
     return 0
 
@@ -101,6 +102,5 @@ def _print_perspective(result) -> None:
     print(f"intrinsics: {p.intrinsics}")
     print(f"inliers: {p.inliers} of {p.observations} observations; pixel noise sigma {p.pixel_std_px:.3g} px; "
           f"reprojection RMS {p.reprojection_rms_px:.3g} px")
-    for note in result.summary.all_warnings:
-        print(f"warning: {note}")
+    print_warnings(result.summary)
     print(f"wrote {result.out_dir}")

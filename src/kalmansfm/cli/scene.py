@@ -7,7 +7,14 @@ import logging
 
 from ..errors import InvalidInputError
 from ..pipeline import run_scene
-from ..scenes import Occluder
+from ..scenes import (
+    DEFAULT_SCENE_FRAMES,
+    DEFAULT_SCENE_NOISE,
+    DEFAULT_SCENE_SEED,
+    DEFAULT_SCENE_SIZE,
+    SCENARIOS,
+    Occluder,
+)
 from ._options import as_typed
 
 log = logging.getLogger("kalmansfm")
@@ -42,10 +49,10 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
-    p.add_argument("--frames", type=int, default=30, metavar="N", help="number of frames (>= 3)")
-    p.add_argument("--size", type=_size, default=(320, 240), metavar="WxH", help="image size in pixels")
-    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the textures and the noise")
-    p.add_argument("--noise", type=float, default=2.0, metavar="SIGMA", help="pixel noise std in grey levels")
+    p.add_argument("--frames", type=int, default=DEFAULT_SCENE_FRAMES, metavar="N", help="number of frames (>= 3)")
+    p.add_argument("--size", type=_size, default=DEFAULT_SCENE_SIZE, metavar="WxH", help="image size in pixels")
+    p.add_argument("--seed", type=int, default=DEFAULT_SCENE_SEED, metavar="S", help="seed of the textures and the noise")
+    p.add_argument("--noise", type=float, default=DEFAULT_SCENE_NOISE, metavar="SIGMA", help="pixel noise std in grey levels")
     p.add_argument(
         "--occluder",
         nargs="?",
@@ -63,8 +70,8 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     )
     p.add_argument(
         "--scenario",
-        choices=["default", "exit"],
-        default="default",
+        choices=SCENARIOS,
+        default=SCENARIOS[0],
         help="default: the built-in path; 'exit': the object accelerates out through the left border",
     )
     p.set_defaults(run=run)

@@ -8,7 +8,8 @@ from ..experiments import available_tasks, fusion_table
 from ..experiments.tables import SIMULATED_TASK
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..report.tables import format_csv, format_text
-from ..structure.landmark import METHODS
+from ..structure.landmark import TASK7_DEFAULT_METHOD
+from ..structure.point_fusion import FUSION_METHODS
 from ._options import as_typed
 
 
@@ -42,8 +43,8 @@ def add_task7_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("task 7 (simulated structure from a moving camera)")
     group.add_argument(
         "--method",
-        choices=METHODS,
-        default="pairs",
+        choices=FUSION_METHODS,
+        default=TASK7_DEFAULT_METHOD,
         help="pairs: the report's Kalman fusion of consecutive-pair triangulations (over-confident); "
         "recursive: Kalman fusion of the images, inverse depth, iterated EKF (consistent); "
         "batch: Gauss-Newton maximum likelihood on all images so far",

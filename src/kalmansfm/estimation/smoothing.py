@@ -54,11 +54,6 @@ class FilterRun:
     nis: np.ndarray
     log_likelihood: np.ndarray
 
-    @property
-    def n_steps(self) -> int:
-        """Number of steps T."""
-        return self.x.shape[0]
-
     @classmethod
     def from_steps(
         cls,

@@ -33,7 +33,7 @@ from scipy import stats
 from ..errors import InvalidInputError
 from .._validation import check_count
 from ..estimation.fusion import fuse_recursive
-from ..structure.landmark import METHODS, estimate_landmarks
+from ..structure.landmark import TASK7_DEFAULT_METHOD, check_method, estimate_landmarks
 from ..structure.triangulation import check_focal
 from .fusion_tasks import load_task
 from .moving_camera import report_path
@@ -254,7 +254,7 @@ def task2_consistency(runs: int = 300, seed: int = 0, progress: Progress | None 
 
 
 def task7_consistency(
-    method: str = "batch",
+    method: str = TASK7_DEFAULT_METHOD,
     runs: int = 300,
     seed: int = 0,
     focal: float = DEFAULT_FOCAL,
@@ -277,8 +277,7 @@ def task7_consistency(
     >>> r.passed, r.iterations
     (True, 24)
     """
-    if method not in METHODS:
-        raise InvalidInputError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    check_method(method)
     if space not in SPACES:
         raise InvalidInputError(f"space must be one of {', '.join(SPACES)}; got {space!r}")
     if space == "inverse_depth" and method != "recursive":
@@ -322,7 +321,11 @@ def run_consistency(
     progress: Progress | None = None,
     space: str = "point",
 ) -> ConsistencyResult:
-    """Dispatch to :func:`task2_consistency` or :func:`task7_consistency` (default method ``pairs``)."""
+    """Dispatch to :func:`task2_consistency` or :func:`task7_consistency`.
+
+    ``method`` None is Task 2's Kalman filter, and for Task 7
+    :data:`~kalmansfm.structure.landmark.TASK7_DEFAULT_METHOD` (``pairs``, the report's scheme).
+    """
     if task == 2:
         if method not in (None, "kalman"):
             raise InvalidInputError(f"method applies to task 7 only (task 2 is the Kalman filter); got {method!r}")
@@ -330,5 +333,5 @@ def run_consistency(
             raise InvalidInputError(f"space applies to task 7 only; got {space!r}")
         return task2_consistency(runs, seed, progress)
     if task == 7:
-        return task7_consistency(method or "pairs", runs, seed, focal, pixel_noise_std, progress, space)
+        return task7_consistency(TASK7_DEFAULT_METHOD if method is None else method, runs, seed, focal, pixel_noise_std, progress, space)
     raise InvalidInputError(f"task must be 2 or 7; got {task!r}")

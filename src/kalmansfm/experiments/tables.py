@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..errors import InvalidInputError
 from .fusion_tasks import FusionTable, available_tasks, run_task
+from ..structure.landmark import TASK7_DEFAULT_METHOD
 from .task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD, task7_table
 
 __all__ = ["SIMULATED_TASK", "fusion_table"]
@@ -15,7 +16,7 @@ SIMULATED_TASK = 7
 def fusion_table(
     task: int,
     *,
-    method: str = "pairs",
+    method: str = TASK7_DEFAULT_METHOD,
     seed: int = 0,
     focal: float = DEFAULT_FOCAL,
     pixel_noise_std: float = DEFAULT_PIXEL_NOISE_STD,

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_positive
-from ..structure.landmark import METHODS, estimate_landmarks, project
+from ..structure.landmark import TASK7_DEFAULT_METHOD, check_method, estimate_landmarks, project
 from ..structure.triangulation import check_focal
 from .fusion_tasks import FusionTable
 from .moving_camera import report_path
@@ -87,7 +87,7 @@ def simulate_observations(
 
 
 def simulate_task7(
-    method: str = "pairs",
+    method: str = TASK7_DEFAULT_METHOD,
     seed: int = 0,
     focal: float = DEFAULT_FOCAL,
     pixel_noise_std: float = DEFAULT_PIXEL_NOISE_STD,
@@ -119,8 +119,7 @@ def simulate_task7(
     >>> bool(np.all(np.abs(r.estimate[-1] - r.truth[-1]) < 4 * r.estimate_std[-1]))
     True
     """
-    if method not in METHODS:
-        raise InvalidInputError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    check_method(method)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InvalidInputError(f"seed must be a non-negative integer; got {seed!r}")
     f = check_focal(focal)
@@ -149,7 +148,7 @@ def simulate_task7(
 
 
 def task7_table(
-    method: str = "pairs",
+    method: str = TASK7_DEFAULT_METHOD,
     seed: int = 0,
     focal: float = DEFAULT_FOCAL,
     pixel_noise_std: float = DEFAULT_PIXEL_NOISE_STD,

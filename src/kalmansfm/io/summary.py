@@ -391,6 +391,21 @@ class RunSummary:
         structure = () if self.structure is None else self.structure.warnings
         return tuple(dict.fromkeys((*self.warnings, *structure)))
 
+    def warning_lines(self) -> list[str]:
+        """:attr:`all_warnings` as the commands print them, one ``warning: …`` line each.
+
+        Returns
+        -------
+        list of str
+            One line (no newline) per warning, in the order of :attr:`all_warnings`.
+
+        Examples
+        --------
+        >>> RunSummary(command="fuse", input="t.csv", warnings=("frames were skipped: 14",)).warning_lines()
+        ['warning: frames were skipped: 14']
+        """
+        return [f"warning: {note}" for note in self.all_warnings]
+
 
 def summary_json(summary: RunSummary) -> str:
     """The text of ``summary.json`` for ``summary``.

@@ -31,7 +31,7 @@ from ..errors import Interrupted, InvalidInputError, KalmanSfmError
 from ..io.atomic import atomic_write, check_output_directory
 from ..io.frames import read_frames
 from ..io.summary import SUMMARY_FILE, RunSource, RunSummary, read_summary
-from .cluster import check_workers, dask_client
+from .cluster import check_cluster, dask_client
 from .demo import demo_source, run_demo
 
 __all__ = ["BatchRow", "BatchResult", "folder_name", "process_sequence", "run_batch", "SCENE_PREFIX"]
@@ -222,14 +222,14 @@ def run_batch(
     Raises
     ------
     InvalidInputError
-        No sequence given, none of them can run, ``n_workers`` < 1, the scheduler cannot
+        No sequence given, none of them can run, ``n_workers`` < 1 or given with ``scheduler``, the scheduler cannot
         be reached, or ``out_dir`` cannot be written; nothing is written then.
     Interrupted
         Ctrl-C or SIGTERM; the message says how many sequences finished.
     """
     if not sequences:
         raise InvalidInputError("give at least one sequence")
-    check_workers(n_workers)
+    check_cluster(scheduler, n_workers)
     root = check_output_directory(out_dir, whole=False)
     options = {"html": html, **pipeline_options}
 

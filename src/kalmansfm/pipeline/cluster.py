@@ -10,13 +10,51 @@ from typing import Any
 
 from ..errors import InvalidInputError
 
-__all__ = ["ScatteringExecutor", "check_workers", "dask_client"]
+__all__ = ["ScatteringExecutor", "check_cluster", "dask_client"]
 
 
-def check_workers(n_workers: int | None) -> None:
-    """Refuse a local cluster without workers (it would wait for ever)."""
+def check_cluster(
+    scheduler: str | None,
+    n_workers: int | None,
+    *,
+    scheduler_name: str = "scheduler",
+    workers_name: str = "n_workers",
+) -> None:
+    """Check where Dask work is to run: an existing scheduler, or a local cluster of ``n_workers``.
+
+    The one check of these two options, for the library (:func:`dask_client`,
+    ``run_batch``, ``run_fuse``) and the command line alike.
+
+    Parameters
+    ----------
+    scheduler : str or None
+        Address of an existing scheduler, or None.
+    n_workers : int or None
+        Processes of a local cluster (None: the number of CPU cores).
+    scheduler_name, workers_name : str
+        How the error message names the two options (the CLI passes ``--scheduler``
+        and ``--workers``).
+
+    Raises
+    ------
+    InvalidInputError
+        ``n_workers`` is not an integer >= 1 (a local cluster without workers would wait
+        for ever), or both are given (a local cluster's size means nothing to an existing one).
+
+    Examples
+    --------
+    >>> check_cluster(None, 2)
+    >>> check_cluster("tcp://host:8786", 2)
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: give n_workers (a local cluster) or scheduler (an existing one), not both
+    """
     if n_workers is not None and (isinstance(n_workers, bool) or not isinstance(n_workers, int) or n_workers < 1):
-        raise InvalidInputError(f"the number of workers must be an integer >= 1; got {n_workers!r}")
+        raise InvalidInputError(f"{workers_name} must be an integer >= 1; got {n_workers!r}")
+    if scheduler is not None and n_workers is not None:
+        raise InvalidInputError(
+            f"give {workers_name} (a local cluster) or {scheduler_name} (an existing one), not both"
+        )
 
 
 @contextmanager
@@ -37,9 +75,10 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
     Raises
     ------
     InvalidInputError
-        ``n_workers`` below 1, or ``scheduler`` is not an address or cannot be reached.
+        ``n_workers`` below 1 or given with ``scheduler`` (:func:`check_cluster`), or
+        ``scheduler`` is not an address or cannot be reached.
     """
-    check_workers(n_workers)
+    check_cluster(scheduler, n_workers)
     # Dask logs every worker start and stop at INFO; keep stderr for our own messages.
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
     logging.getLogger("distributed").setLevel(logging.WARNING)

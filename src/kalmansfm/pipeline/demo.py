@@ -21,7 +21,7 @@ from ..io.frames import FrameSource, read_frames, stage_frames
 from ..io.intrinsics import intrinsics_from_focal
 from ..io.summary import RunSource, RunSummary, run_source
 from ..report.html import build_report
-from ..scenes import Scene, render_scene
+from ..scenes import DEFAULT_SCENE_FRAMES, DEFAULT_SCENE_SEED, Scene, render_scene
 from ..scenes.files import scene_description, stage_ground_truth
 from ..structure import PointUncertainty, Reconstruction
 from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
@@ -66,16 +66,11 @@ class DemoRun:
     perspective: PerspectiveReconstruction | None = None
 
 
-def _load_frames(sequence: FrameSource) -> list[np.ndarray]:
-    frames = [np.asarray(f) for f in sequence]
-    return [f if f.dtype == np.uint8 else np.clip(np.rint(f), 0, 255).astype(np.uint8) for f in frames]
-
-
 def demo_source(
     sequence: FrameSource | None,
     *,
-    seed: int = 0,
-    n_frames: int = 30,
+    seed: int = DEFAULT_SCENE_SEED,
+    n_frames: int = DEFAULT_SCENE_FRAMES,
     points: np.ndarray | None = None,
     track_ids: np.ndarray | None = None,
     settings: TrackerSettings | None = None,
@@ -112,8 +107,8 @@ def run_demo(
     out_dir: str | os.PathLike[str],
     *,
     input: str | os.PathLike[str] | None = None,
-    seed: int = 0,
-    n_frames: int = 30,
+    seed: int = DEFAULT_SCENE_SEED,
+    n_frames: int = DEFAULT_SCENE_FRAMES,
     points: np.ndarray | None = None,
     track_ids: np.ndarray | None = None,
     settings: TrackerSettings | None = None,
@@ -188,7 +183,7 @@ def run_demo(
         else:
             sequence = read_frames(input)
             made_from = demo_source(sequence, **options)
-            frames = _load_frames(sequence)
+            frames = list(sequence)  # FrameSource yields (H, W) uint8 grey frames
             source = str(input)
     with clock.step("tracking"):
         tracks = track(frames, points, track_ids=track_ids, settings=settings, progress=progress)
@@ -293,7 +288,7 @@ def describe(run: DemoRun) -> str:
         if truth is not None and truth.shape_error_pct is not None:
             line += f"; shape error {truth.shape_error_pct:.2f} % of the object radius"
         lines.append(line)
-    lines.extend(f"warning: {w}" for w in s.all_warnings)
+    lines.extend(s.warning_lines())
     if s.total_s is not None:
         extra = f" (and {run.report_s:.2f} s to build the report)" if run.report_s is not None else ""
         lines.append(f"time: {s.total_s:.2f} s{extra}")

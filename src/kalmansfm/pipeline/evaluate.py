@@ -14,6 +14,7 @@ from ..io.ground_truth import GroundTruth
 from ..io.summary import Similarity, StructureMetrics, TrackingMetrics, TrackMetrics, TruthComparison
 from ..structure import PointUncertainty, Reconstruction, align_similarity, factorize, point_uncertainty
 from ..structure.cameras import camera_rotation_matrices, rotation_angle_deg
+from ..structure.factorization import DEFAULT_MAX_ITERATIONS
 from ..tracking.tracks import LOST, PREDICTED, Tracks
 
 __all__ = ["compare_with_truth", "factorize_tracks", "structure_metrics", "structure_uncertainty", "tracking_metrics"]
@@ -69,7 +70,7 @@ def tracking_metrics(tracks: Tracks) -> TrackingMetrics:
     )
 
 
-def factorize_tracks(tracks: Tracks, *, weighted: bool = True, max_iterations: int = 500) -> Reconstruction:
+def factorize_tracks(tracks: Tracks, *, weighted: bool = True, max_iterations: int = DEFAULT_MAX_ITERATIONS) -> Reconstruction:
     """Factorize the measured positions of ``tracks`` (a coasting prediction is no observation).
 
     With ``weighted`` (and covariances in the tracks) each observation has the least-squares

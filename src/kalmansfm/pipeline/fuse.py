@@ -18,7 +18,7 @@ from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
 from ..structure.point_fusion import FusedStructure, FusionSettings, fuse_with_settings
 from ..structure.points import PointStatus, rms_std
-from .cluster import ScatteringExecutor, check_workers, dask_client
+from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .stage import Stopwatch, stage_points, stage_summary
 
 __all__ = ["FuseRun", "run_fuse"]
@@ -124,7 +124,7 @@ def run_fuse(
     (30, ['history.csv', 'rejected.csv', 'structure.csv'])
     """
     settings = replace(settings or FusionSettings(), history=True)
-    check_workers(n_workers)
+    check_cluster(scheduler, n_workers)
     inputs = [tracks_path, cameras_path]
     check_output_directory(out_dir, inputs=inputs)
     clock = Stopwatch()
@@ -140,7 +140,6 @@ def run_fuse(
         more = f", … ({data.frames_without_camera.size} in all)" if data.frames_without_camera.size > 8 else ""
         warnings.append(f"frames of {Path(tracks_path).name} without a camera in {Path(cameras_path).name} "
                         f"were skipped: {shown}{more}")
-        log.warning("warning: %s", warnings[-1])
     log.info("fusing %d tracks over %d views (%s)", data.observations.shape[1], len(data.cameras), settings.method)
     with clock.step("fusion"):
         if scheduler is None and n_workers is None:

@@ -21,6 +21,7 @@ from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..structure import PointUncertainty, Reconstruction
+from ..structure.factorization import DEFAULT_MAX_ITERATIONS
 from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
 from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, structure_metrics, structure_uncertainty
@@ -105,7 +106,7 @@ def run_reconstruct(
     perspective: PerspectiveSettings | None = None,
     weighted: bool = True,
     smooth: bool | None = None,
-    max_iterations: int = 500,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
     plot: bool = True,
 ) -> ReconstructRun:
     """Reconstruct the tracks of ``tracks_path`` and write the run folder ``out_dir``, all or nothing.

@@ -6,7 +6,17 @@ import os
 from pathlib import Path
 
 from ..io.atomic import check_output_directory
-from ..scenes import Occluder, Scene, render_scene, write_scene
+from ..scenes import (
+    DEFAULT_SCENE_FRAMES,
+    DEFAULT_SCENE_NOISE,
+    DEFAULT_SCENE_SEED,
+    DEFAULT_SCENE_SIZE,
+    SCENARIOS,
+    Occluder,
+    Scene,
+    render_scene,
+    write_scene,
+)
 
 __all__ = ["run_scene"]
 
@@ -14,12 +24,12 @@ __all__ = ["run_scene"]
 def run_scene(
     out_dir: str | os.PathLike[str],
     *,
-    n_frames: int = 30,
-    image_size: tuple[int, int] = (320, 240),
-    seed: int = 0,
-    pixel_noise_std: float = 2.0,
+    n_frames: int = DEFAULT_SCENE_FRAMES,
+    image_size: tuple[int, int] = DEFAULT_SCENE_SIZE,
+    seed: int = DEFAULT_SCENE_SEED,
+    pixel_noise_std: float = DEFAULT_SCENE_NOISE,
     occluder: Occluder | None = None,
-    scenario: str = "default",
+    scenario: str = SCENARIOS[0],
 ) -> tuple[Scene, list[Path]]:
     """Render the built-in scene (every option checked before the folder is touched) and write it to ``out_dir``.
 

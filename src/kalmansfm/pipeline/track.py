@@ -59,26 +59,24 @@ def run_track(
     """
     check_output_directory(out_dir, inputs=[input, points])
     clock = Stopwatch()
-    frames = read_frames(input)
+    sequence = read_frames(input)
     start = track_ids = None
     if points is not None:
         start, track_ids = read_points_csv(points)
-        first = next(iter(frames))
-        check_points_inside(start, first.shape[1], first.shape[0], str(points))
-    source = run_source(input, [*frames.paths, *([points] if points is not None else [])],
+    source = run_source(input, [*sequence.paths, *([points] if points is not None else [])],
                         {"settings": settings or TrackerSettings(), "smooth": smooth})
-    with clock.step("tracking"):
+    with clock.step("tracking"):  # decoding included, as when the tracker read the frames lazily
+        frames = list(sequence)  # decoded once: tracked, then drawn (tracks.png, tracks.gif)
+        if points is not None:
+            check_points_inside(start, frames[0].shape[1], frames[0].shape[0], str(points))
         tracks = track(frames, start, track_ids=track_ids, settings=settings, progress=progress)
     if smooth is not False:
         with clock.step("smoothing"):
             tracks = smooth_tracks(tracks, lag=None if smooth is True else int(smooth))
-    last_frame = None
-    for last_frame in frames:  # the last frame for the picture (frames are decoded lazily)
-        pass
     summary = RunSummary(command="track", input=str(input), source=source, settings=tracks.settings,
                          smoothed=tracks.smoothed, tracking=tracking_metrics(tracks))
     with output_directory(out_dir, inputs=[input, points]) as out:
         with clock.step("writing"):
-            names = stage_tracking(out, tracks, frames, last_frame=last_frame)  # type: ignore[arg-type]
+            names = stage_tracking(out, tracks, frames, last_frame=frames[-1])
         summary = stage_summary(out, summary, clock, names)
     return TrackRun(Path(out_dir), tracks, summary)

@@ -31,12 +31,29 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.ground_truth import GroundTruth
 from .._validation import check_count
 
-__all__ = ["MAX_IMAGE_SIDE", "Occluder", "Scene", "render_scene", "SCENARIOS"]
+__all__ = [
+    "DEFAULT_SCENE_FRAMES",
+    "DEFAULT_SCENE_NOISE",
+    "DEFAULT_SCENE_SEED",
+    "DEFAULT_SCENE_SIZE",
+    "MAX_IMAGE_SIDE",
+    "Occluder",
+    "Scene",
+    "render_scene",
+    "SCENARIOS",
+]
 
 #: Motion variants of the scene: ``"default"`` stays in the image;
 #: ``"exit"`` accelerates the object out through the left border, so the
 #: markers leave the image one after the other in the last frames.
 SCENARIOS = ("default", "exit")
+#: The built-in scene's defaults, shared by :func:`render_scene`, the pipeline and the CLI:
+#: number of frames, image size (width, height) in pixels, seed of the textures and the noise,
+#: and the pixel noise standard deviation in grey levels.
+DEFAULT_SCENE_FRAMES = 30
+DEFAULT_SCENE_SIZE = (320, 240)
+DEFAULT_SCENE_SEED = 0
+DEFAULT_SCENE_NOISE = 2.0
 #: Largest width or height of a rendered frame (a 4096×3072 frame takes ~6 s to draw; 40000×40000 would take hours).
 MAX_IMAGE_SIDE = 4096
 
@@ -341,13 +358,13 @@ def _check_occluder(occluder: Occluder | dict | None, n_frames: int, n_points: i
 
 
 def render_scene(
-    n_frames: int = 30,
-    image_size: tuple[int, int] = (320, 240),
-    seed: int = 0,
-    pixel_noise_std: float = 2.0,
+    n_frames: int = DEFAULT_SCENE_FRAMES,
+    image_size: tuple[int, int] = DEFAULT_SCENE_SIZE,
+    seed: int = DEFAULT_SCENE_SEED,
+    pixel_noise_std: float = DEFAULT_SCENE_NOISE,
     occluder: Occluder | dict | None = None,
     *,
-    scenario: str = "default",
+    scenario: str = SCENARIOS[0],
     marker_size_px: float = 6.0,
     yaw_deg: tuple[float, float] = (-45.0, 30.0),
     tilt_deg: tuple[float, float] = (18.0, -6.0),

@@ -47,7 +47,10 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from .._validation import as_float_array, check_count
 from .lowrank import truncated_svd
 
-__all__ = ["Reconstruction", "factorize", "metric_upgrade"]
+__all__ = ["DEFAULT_MAX_ITERATIONS", "Reconstruction", "factorize", "metric_upgrade"]
+
+#: Default cap on the alternating least-squares iterations (missing data or weights).
+DEFAULT_MAX_ITERATIONS = 500
 
 # Frames × points up to which the complete-data path uses a full LAPACK SVD.
 _LAPACK_LIMIT = 2_000_000
@@ -118,7 +121,7 @@ def factorize(
     positions: np.ndarray,
     *,
     weights: np.ndarray | None = None,
-    max_iterations: int = 500,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
     tol: float = 1e-10,
     rng: np.random.Generator | int | None = 0,
 ) -> Reconstruction:

@@ -41,12 +41,25 @@ import numpy as np
 from ..errors import InvalidInputError, NotEnoughDataError
 from .._validation import as_float_array, check_positive
 from .pinhole import CameraSet
-from .point_fusion import fuse, pair_triangulations
+from .point_fusion import FUSION_METHODS, fuse, pair_triangulations
 from .triangulation import TRIANGULATION_NOT_OBSERVED, check_focal, check_motion
 
-__all__ = ["METHODS", "TRIANGULATION_NOT_OBSERVED", "LandmarkEstimates", "estimate_landmarks", "project"]
+__all__ = [
+    "DEFAULT_METHOD",
+    "TASK7_DEFAULT_METHOD",
+    "check_method",
+    "TRIANGULATION_NOT_OBSERVED",
+    "LandmarkEstimates",
+    "estimate_landmarks",
+    "project",
+]
 
-METHODS = ("pairs", "batch", "recursive")
+#: The default of :func:`estimate_landmarks`: Gauss-Newton maximum likelihood, the reference estimator.
+DEFAULT_METHOD = "batch"
+#: The default of the Task 7 reproduction (``kalmansfm tables --task 7``, ``kalmansfm consistency
+#: --task 7`` and the functions behind them): the report's own scheme, so that the table is the
+#: report's table and the consistency check shows how over-confident that scheme is.
+TASK7_DEFAULT_METHOD = "pairs"
 
 
 @dataclass(frozen=True)
@@ -152,13 +165,41 @@ def _to_frames(A: np.ndarray, c: np.ndarray, X: np.ndarray, P: np.ndarray) -> tu
             np.einsum("kij,kljm,knm->klin", A, P, A))
 
 
+def check_method(method: str) -> str:
+    """``method`` if it is one of :data:`~kalmansfm.structure.point_fusion.FUSION_METHODS`.
+
+    Parameters
+    ----------
+    method : str
+        The name of a landmark estimator.
+
+    Returns
+    -------
+    str
+        ``method`` unchanged.
+
+    Raises
+    ------
+    InvalidInputError
+        ``method`` is not one of the fusion methods.
+
+    Examples
+    --------
+    >>> check_method("pairs")
+    'pairs'
+    """
+    if method not in FUSION_METHODS:
+        raise InvalidInputError(f"method must be one of {', '.join(FUSION_METHODS)}; got {method!r}")
+    return method
+
+
 def estimate_landmarks(
     observations: object,
     rotations: object,
     translations: object,
     focal: float,
     pixel_std: object,
-    method: str = "batch",
+    method: str = DEFAULT_METHOD,
 ) -> LandmarkEstimates:
     """Estimate landmarks after every image from a camera with known motion.
 
@@ -203,8 +244,7 @@ def estimate_landmarks(
     >>> bool(np.isnan(est.estimates[0]).all())
     True
     """
-    if method not in METHODS:
-        raise InvalidInputError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    check_method(method)
     obs, C, b, f, sigma = _validate(observations, rotations, translations, focal, pixel_std)
     K, L, _ = obs.shape
     A, c = _cumulative_poses(C, b)

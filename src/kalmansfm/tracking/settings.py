@@ -213,11 +213,6 @@ class TrackerSettings:
         return float(self.gate_radius) if self.gate_radius is not None else gate_radius_for_probability(self.gate_probability)
 
     @property
-    def effective_gate_probability(self) -> float:
-        """Probability mass inside the gate actually used (from ``gate_radius`` when it is given)."""
-        return gate_probability_for_radius(self.effective_gate_radius)
-
-    @property
     def coast_limit(self) -> int:
         """Frames a track may coast (``max_misses`` or the matcher's default)."""
         return _DEFAULT_MAX_MISSES[self.matcher] if self.max_misses is None else int(self.max_misses)

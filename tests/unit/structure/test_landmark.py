@@ -95,7 +95,7 @@ def test_a_landmark_on_the_baseline_is_nan_and_flagged_not_inf():
         ({"focal": 0.0}, InvalidInputError, "focal must be finite and > 0"),
         ({"pixel_std": -1.0}, InvalidInputError, "pixel_std must be finite and > 0"),
         ({"pixel_std": 0.0}, InvalidInputError, "pixel_std must be finite and > 0"),
-        ({"method": "ekf"}, InvalidInputError, "method must be one of pairs, batch, recursive"),
+        ({"method": "ekf"}, InvalidInputError, "method must be one of recursive, batch, pairs"),
     ],
 )
 def test_bad_input_raises_with_a_clear_message(kwargs, error, match):
