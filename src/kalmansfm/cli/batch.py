@@ -21,7 +21,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "failed row and the others run; a sequence whose folder holds a finished run of the same input files "
         "and options is skipped. Exit code 0 when every sequence is ok or skipped, 1 when any failed, 2 when "
         "none can run.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("sequences", nargs="+", metavar="SEQUENCE", help="image folder, glob, video or scene:SEED")
     p.add_argument("--out", required=True, help="output folder")

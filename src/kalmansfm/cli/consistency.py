@@ -36,7 +36,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         description="Simulate an experiment N times with known truth and check whether each estimator's "
         "covariance matches its actual errors: per axis the fraction of errors within 1σ and 3σ, and the mean "
         "NEES with its 95 % chi-square interval.  PASS means the final iteration's mean NEES is inside it.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--task", type=int, choices=[2, 7], required=True, help="Task 2 (1D fusion) or Task 7 (landmark)")
     p.add_argument("--method", choices=FUSION_METHODS, default=TASK7_DEFAULT_METHOD, action=_StoreMethod,

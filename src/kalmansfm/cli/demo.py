@@ -21,7 +21,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         description="Render the built-in polyhedron scene (or read --input), track its corners with the "
         "Kalman-gated tracker, recover shape and motion by factorization, compare with the ground truth, "
         "and write the results and a self-contained report.html into --out.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--out", default="kalmansfm-demo", help="output folder")
     p.add_argument(

@@ -35,7 +35,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "(optional status); CAMERAS a CSV frame,p11..p34 (3x4 projection matrices, row-major) or "
         "frame,fx,fy,cx,cy,skew,r11..r33,t1,t2,t3 (x_cam = R X + t). Writes structure.csv, history.csv, "
         "rejected.csv, structure.ply, fusion.png and summary.json to DIR.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("tracks", metavar="TRACKS", type=Path, help="tracks.csv, tracks.npz or a frame,track_id,x,y CSV")
     p.add_argument("--cameras", metavar="CAMERAS", type=Path, required=True, help="the cameras CSV")

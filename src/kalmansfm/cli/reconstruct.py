@@ -29,7 +29,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "per-point covariances in the free-network gauge; writes structure.csv (with covariances and status), "
         "cameras.csv, structure.ply, reconstruction.png and summary.json. --camera auto runs both and keeps "
         "the perspective model when its reprojection RMS is at most the affine model's.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("tracks", metavar="TRACKS", type=Path, help="tracks.csv, tracks.npz or a frame,track_id,x,y CSV")
     p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output folder")

@@ -20,7 +20,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "'kalmansfm demo' wrote) from the files in it, without recomputing anything. The folder needs "
         "summary.json; every other file (frames/, tracks.npz, structure.csv, motion.csv, ground truth, "
         "fusion_tables/) adds its section when present.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("run_dir", metavar="DIR", type=Path, help="the run folder (contains summary.json)")
     p.add_argument("--name", default="report.html", help="file name of the report inside DIR")

@@ -46,7 +46,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "on its corners, turning slowly while it moves across a textured background — and write its frames "
         "(frame_000.png …) with the exact ground truth: ground_truth_tracks.csv, ground_truth_points.csv, "
         "ground_truth_motion.csv and points.csv (frame-0 markers, the input of 'kalmansfm track --points').",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
     p.add_argument("--frames", type=int, default=DEFAULT_SCENE_FRAMES, metavar="N", help="number of frames (>= 3)")

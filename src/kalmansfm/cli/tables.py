@@ -25,7 +25,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         f"estimate and its standard deviation computed by kalmansfm. Tasks {tasks[0]}-{tasks[-1]} are the report's "
         f"published tables; task {SIMULATED_TASK} simulates its structure-from-motion experiment along the same path "
         "(single-pair triangulation as the measurement, the chosen method's estimate as the Kalman columns).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("--task", type=int, required=True, metavar="N", help="task number")
     p.add_argument(

@@ -57,7 +57,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "--matcher search is the report's exhaustive SSD/NCC template search inside the gate ellipse. Writes tracks.csv, tracks.npz, "
         "covariance_trace.png, tracks.png, tracks.gif and summary.json to DIR. With --smooth the files hold "
         "Rauch-Tung-Striebel smoothed estimates (each given the whole sequence) instead of the online ones.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("input", metavar="INPUT", help="folder of images (natural order), glob pattern or video file")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")

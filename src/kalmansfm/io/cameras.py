@@ -241,7 +241,7 @@ def match_cameras(positions: np.ndarray, frames: np.ndarray, track_ids: np.ndarr
 
     Parameters
     ----------
-    positions : (F, N, 2) — observed positions, NaN where none (e.g. :class:`~.track_table.TrackPositions`).
+    positions : (F, N, 2) — observed positions, NaN where none (e.g. :meth:`~kalmansfm.tracking.Tracks.observations`).
     frames : (F,) int — frame number of each row of ``positions``.
     track_ids : (N,) int.
     cameras : CameraSet.
