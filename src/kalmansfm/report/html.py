@@ -649,14 +649,20 @@ def _section_fusion(run: RunFolder) -> str | None:
     ]
     parts = [_table(["", "value"], facts)]
     if fusion.frames_without_camera:
-        shown = ", ".join(str(f) for f in fusion.frames_without_camera[:10])
-        more = " …" if len(fusion.frames_without_camera) > 10 else ""
-        parts.append(f'<p class="warn">Frames with observations but no camera, skipped: {_esc(shown)}{more}</p>')
+        parts.append(_frames_warning("Frames with observations but no camera, skipped",
+                                     fusion.frames_without_camera, 10))
     if "fusion.png" in run.figures:
         parts.append(_figure(run.figures["fusion.png"].read_bytes(),
                              "Each point's uncertainty as views are fused: median and quartiles over points, "
                              "and the paths of the points seen most often."))
     return "".join(parts)
+
+
+def _frames_warning(label: str, frames: Sequence[int], shown: int) -> str:
+    """A warning paragraph listing the first ``shown`` frame numbers (an ellipsis when there are more)."""
+    listed = ", ".join(str(f) for f in frames[:shown])
+    more = " …" if len(frames) > shown else ""
+    return f'<p class="warn">{_esc(label)}: {_esc(listed)}{more}</p>'
 
 
 def _section_perspective(run: RunFolder) -> str | None:
@@ -682,9 +688,7 @@ def _section_perspective(run: RunFolder) -> str | None:
         facts.insert(0, ("camera model (--camera auto)", p.camera_choice))
     parts = [_table(["", "value"], facts)]
     if p.unregistered:
-        shown = ", ".join(str(f) for f in p.unregistered[:12])
-        more = " …" if len(p.unregistered) > 12 else ""
-        parts.append(f'<p class="warn">Frames without a pose (unregistered): {_esc(shown)}{more}</p>')
+        parts.append(_frames_warning("Frames without a pose (unregistered)", p.unregistered, 12))
     if "reconstruction.png" in run.figures:
         parts.append(_figure(run.figures["reconstruction.png"].read_bytes(),
                              "The recovered camera path (purple, frame numbers) and the points coloured by their "

@@ -283,3 +283,10 @@ def test_survival_figure_draws_the_tracks_it_is_given():
     png = survival_figure(Tracks(positions=positions, status=status, track_ids=np.arange(3)))
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     assert survival_figure(Tracks(positions=np.zeros((4, 0, 2)), status=np.zeros((4, 0), np.int8), track_ids=np.zeros(0, np.int64))) is None
+
+
+def test_a_frame_list_warning_names_the_first_frames_and_says_when_there_are_more():
+    from kalmansfm.report.html import _frames_warning
+
+    assert _frames_warning("Frames <x>", [3, 4], 2) == '<p class="warn">Frames &lt;x&gt;: 3, 4</p>'
+    assert _frames_warning("Frames", list(range(15)), 12).endswith(": 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11 …</p>")
