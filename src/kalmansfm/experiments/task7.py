@@ -52,7 +52,7 @@ class Task7Result:
         standard deviation.
     estimate_covariance : (24, 3, 3).
     converged : (24,) bool — the estimate exists and its iteration converged.
-    measurement_status : (24,) int8 — triangulation status codes.
+    measurement_status : (24,) int8 — the pair triangulation's ``PointStatus``.
     """
 
     task: int

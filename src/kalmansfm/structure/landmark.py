@@ -42,13 +42,12 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from .._validation import as_float_array, check_positive
 from .pinhole import CameraSet
 from .point_fusion import FUSION_METHODS, fuse, pair_triangulations
-from .triangulation import TRIANGULATION_NOT_OBSERVED, check_focal, check_motion
+from .triangulation import check_focal, check_motion
 
 __all__ = [
     "DEFAULT_METHOD",
     "TASK7_DEFAULT_METHOD",
     "check_method",
-    "TRIANGULATION_NOT_OBSERVED",
     "LandmarkEstimates",
     "estimate_landmarks",
     "project",
@@ -76,9 +75,9 @@ class LandmarkEstimates:
         observation and image k (images (k-1, k) when it is seen in both), in frame k;
         NaN at k = 0 and where it failed.
     measurement_covariances : (K, L, 3, 3) — its first-order covariance (eq. 34).
-    measurement_status : (K, L) int8 — triangulation status codes
-        (``TRIANGULATION_OK``, ``..._PARALLEL_RAYS``, ``..._BEHIND_CAMERA``,
-        ``TRIANGULATION_NOT_OBSERVED``).
+    measurement_status : (K, L) int8 — the pair triangulation's :class:`~.points.PointStatus`
+        (``OK``, ``DEGENERATE`` for parallel rays, ``BEHIND_CAMERA``, ``TOO_FEW_VIEWS`` where
+        no pair ends at image k).
     converged : (K, L) bool — the method has a finite estimate after image k.
     inverse_depth, inverse_depth_covariances : (K, L, 3), (K, L, 3, 3) or None — for
         ``recursive``, the filter's state after image k: (x/z, y/z, 1/z) of the landmark in

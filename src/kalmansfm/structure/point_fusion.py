@@ -86,13 +86,7 @@ from .pinhole import (
     triangulate_points,
 )
 from .points import PointStatus
-from .triangulation import (
-    TRIANGULATION_BEHIND_CAMERA,
-    TRIANGULATION_NOT_OBSERVED,
-    TRIANGULATION_OK,
-    TRIANGULATION_PARALLEL_RAYS,
-    triangulate_midpoint,
-)
+from .triangulation import triangulate_midpoint
 
 __all__ = [
     "DEFAULT_CHUNK_POINTS",
@@ -837,7 +831,7 @@ def _pair_triangulation(g: _Geometry, a: int, v: int, xa: np.ndarray, xv: np.nda
     b = o * (R_rel @ g.t[a] - g.t[v])
     if not np.any(np.abs(b) > 1e-12 * (1.0 + np.abs(g.t[a]).max())):
         nan = np.full((xa.shape[0], 3), np.nan)
-        return nan, np.full((xa.shape[0], 3, 3), np.nan), np.full(xa.shape[0], TRIANGULATION_PARALLEL_RAYS)
+        return nan, np.full((xa.shape[0], 3, 3), np.nan), np.full(xa.shape[0], PointStatus.DEGENERATE)
 
     def normalised(K_inv: np.ndarray, x: np.ndarray) -> np.ndarray:
         h = np.concatenate([x, np.ones((x.shape[0], 1))], axis=1) @ K_inv.T
@@ -859,13 +853,13 @@ def _pair_table(g: _Geometry, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     """Every point's consecutive observations (u, v) triangulated, stored at view v (unit-σ covariances).
 
     Returns points (V, n, 3), covariances (V, n, 3, 3), status (V, n) and the pair's first
-    view (V, n), -1 and TRIANGULATION_NOT_OBSERVED where no pair ends at v.
+    view (V, n), -1 and ``PointStatus.TOO_FEW_VIEWS`` where no pair ends at v.
     """
     V, n, _ = obs.shape
     seen_all = np.isfinite(obs).all(axis=2)
     X = np.full((V, n, 3), np.nan)
     C = np.full((V, n, 3, 3), np.nan)
-    status = np.full((V, n), TRIANGULATION_NOT_OBSERVED, dtype=np.int8)
+    status = np.full((V, n), PointStatus.TOO_FEW_VIEWS, dtype=np.int8)
     previous = np.full((V, n), -1)
     last = np.full(n, -1)
     for v in range(V):
@@ -888,8 +882,8 @@ class PairTriangulations:
         point's previous observation and its observation in v, world coordinates; NaN where
         no pair ends at v or the rays are parallel.
     covariances : (V, N, 3, 3) — first-order covariance (eq. 34) at pixel noise σ.
-    status : (V, N) int8 — ``TRIANGULATION_OK``, ``..._PARALLEL_RAYS``, ``..._BEHIND_CAMERA`` or
-        ``TRIANGULATION_NOT_OBSERVED`` (:mod:`~kalmansfm.structure.triangulation`).
+    status : (V, N) int8 — :class:`~.points.PointStatus`: ``OK``, ``DEGENERATE`` (parallel rays),
+        ``BEHIND_CAMERA`` or ``TOO_FEW_VIEWS`` (no pair ends at v).
     previous : (V, N) int — the view of the pair's first observation, -1 where none.
     """
 
@@ -933,7 +927,7 @@ def _pairs(job: _Chunk) -> _ChunkResult:
     p, R, st, previous = _pair_table(g, obs)
     finite = np.isfinite(R).all(axis=(2, 3))
     # a singular first-order covariance (e.g. a point on the baseline) cannot be fused
-    usable = ((st == TRIANGULATION_OK) | (st == TRIANGULATION_BEHIND_CAMERA)) & finite
+    usable = ((st == PointStatus.OK) | (st == PointStatus.BEHIND_CAMERA)) & finite
     usable &= np.linalg.eigvalsh(np.where(usable[..., None, None], R, np.eye(3)))[..., 0] > 0
     x = np.full((n, 3), np.nan)
     P = np.full((n, 3, 3), np.nan)

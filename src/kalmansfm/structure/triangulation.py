@@ -42,25 +42,20 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import as_float_array, check_finite, check_positive
+from .points import PointStatus
 
 __all__ = [
-    "TRIANGULATION_OK",
-    "TRIANGULATION_PARALLEL_RAYS",
-    "TRIANGULATION_BEHIND_CAMERA",
-    "TRIANGULATION_NOT_OBSERVED",
     "TriangulationResult",
     "triangulate_midpoint",
 ]
 
-#: status code: the point was triangulated.
-TRIANGULATION_OK = 0
-#: status code: the two rays are parallel (no parallax); the point is NaN.
-TRIANGULATION_PARALLEL_RAYS = 1
-#: status code: the point was triangulated but lies behind the right camera (alpha <= 0);
-#: the numbers are returned as computed, they are not a physically possible landmark.
-TRIANGULATION_BEHIND_CAMERA = 2
-#: status code: no pair could be formed (the point is not seen in one of the two images).
-TRIANGULATION_NOT_OBSERVED = 3
+# Status codes are PointStatus members (the one point status of the package):
+#   OK             the point was triangulated in front of the right camera;
+#   DEGENERATE     the two rays are parallel (no parallax): the point is NaN;
+#   BEHIND_CAMERA  triangulated, but behind the right camera (alpha <= 0): the numbers are
+#                  returned as computed, they are not a physically possible landmark;
+#   TOO_FEW_VIEWS  (pair tables of point_fusion) no pair could be formed: the point is not
+#                  seen in one of the two images.
 
 # Rays whose directions make an angle smaller than this (radians) are treated as parallel.
 _PARALLEL_SINE = 1e-12
@@ -78,8 +73,8 @@ class TriangulationResult:
         NaN where the rays are parallel; zeros when no noise was given.
     jacobians : (L, 3, 4) or (3, 4) — dp/d(x_left, y_left, x_right, y_right).
     depth_scale : (L,) or () — alpha in p = alpha (x_right, y_right, f); p's depth is alpha f.
-    status : (L,) or () int8 — TRIANGULATION_OK, TRIANGULATION_PARALLEL_RAYS or
-        TRIANGULATION_BEHIND_CAMERA.
+    status : (L,) or () int8 — a :class:`~.points.PointStatus` value: ``OK``,
+        ``DEGENERATE`` (parallel rays) or ``BEHIND_CAMERA``.
     """
 
     points: np.ndarray
@@ -91,7 +86,7 @@ class TriangulationResult:
     @property
     def valid(self) -> np.ndarray:
         """True where the point was triangulated in front of the right camera."""
-        return self.status == TRIANGULATION_OK
+        return self.status == PointStatus.OK
 
     @property
     def standard_deviations(self) -> np.ndarray:
@@ -180,7 +175,7 @@ def triangulate_midpoint(
     -------
     TriangulationResult
         Points in the right camera's frame.  For ``(L, 2)`` input a landmark whose
-        rays are parallel gets NaN and ``status == TRIANGULATION_PARALLEL_RAYS``; a
+        rays are parallel gets NaN and ``status == PointStatus.DEGENERATE``; a
         single landmark given as ``(2,)`` raises instead.
 
     Raises
@@ -255,8 +250,7 @@ def triangulate_midpoint(
     # eq. 34: Cov(p) = sum_c J[:, c] J[:, c]^T sigma_c^2
     cov = np.einsum("lic,lc,ljc->lij", J, variances, J)
 
-    status = np.where(parallel, TRIANGULATION_PARALLEL_RAYS, np.where(alpha > 0, TRIANGULATION_OK,
-                                                                       TRIANGULATION_BEHIND_CAMERA))
+    status = np.where(parallel, PointStatus.DEGENERATE, np.where(alpha > 0, PointStatus.OK, PointStatus.BEHIND_CAMERA))
     status = status.astype(np.int8)
     p[parallel] = np.nan
     J[parallel] = np.nan

@@ -7,7 +7,8 @@ from scipy.spatial.transform import Rotation
 
 from kalmansfm import InvalidInputError, NotEnoughDataError, fuse_recursive
 from kalmansfm.experiments.moving_camera import report_path
-from kalmansfm.structure.landmark import TRIANGULATION_NOT_OBSERVED, estimate_landmarks, project
+from kalmansfm.structure.landmark import estimate_landmarks, project
+from kalmansfm.structure.points import PointStatus
 
 F = 500.0
 
@@ -32,7 +33,8 @@ def test_noise_free_observations_give_the_truth(method, seed):
     assert np.isnan(est.estimates[0]).all()  # one image: no depth
     assert est.converged[1:].all() and not est.converged[0].any()
     np.testing.assert_allclose(est.measurements[1:], X[1:], rtol=1e-9)
-    assert (est.measurement_status[0] == TRIANGULATION_NOT_OBSERVED).all()
+    assert (est.measurement_status[0] == PointStatus.TOO_FEW_VIEWS).all()  # no pair ends at image 0
+    assert (est.measurement_status[1:] == PointStatus.OK).all()
 
 
 def test_pairs_is_fuse_recursive_on_the_pair_triangulations():
@@ -64,7 +66,7 @@ def test_missing_observations_are_skipped_and_flagged():
     obs[0, 2] = np.nan  # landmark 2 first seen in image 1
     for method in ("pairs", "batch", "recursive"):
         est = estimate_landmarks(obs, C, b, F, 1.0, method=method)
-        assert est.measurement_status[1, 0] == TRIANGULATION_NOT_OBSERVED
+        assert PointStatus(est.measurement_status[1, 0]).label == "too_few_views"
         np.testing.assert_allclose(est.measurements[2, 0], X[2, 0], rtol=1e-9)  # the pair (0, 2)
         assert np.isnan(est.estimates[1, 0]).all() and not est.converged[1, 0]
         assert np.isnan(est.estimates[1, 2]).all() and not est.converged[1, 2]

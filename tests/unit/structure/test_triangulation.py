@@ -5,12 +5,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kalmansfm import InvalidInputError
-from kalmansfm.structure.triangulation import (
-    TRIANGULATION_BEHIND_CAMERA,
-    TRIANGULATION_OK,
-    TRIANGULATION_PARALLEL_RAYS,
-    triangulate_midpoint,
-)
+from kalmansfm.structure.points import PointStatus
+from kalmansfm.structure.triangulation import triangulate_midpoint
 
 F = 500.0
 
@@ -33,7 +29,7 @@ def test_noise_free_points_are_recovered_exactly_in_the_right_frame(seed):
     R, b, X_left, X_right = _scene(seed)
     r = triangulate_midpoint(_project(X_left), _project(X_right), R, b, F)
     np.testing.assert_allclose(r.points, X_right, rtol=1e-10, atol=1e-10)
-    assert np.all(r.status == TRIANGULATION_OK)
+    assert np.all(r.status == PointStatus.OK)
     np.testing.assert_allclose(r.depth_scale * F, X_right[:, 2], rtol=1e-10)
     assert np.all(r.covariances == 0.0)  # no noise given
 
@@ -113,7 +109,8 @@ def test_parallel_rays_among_many_give_nan_and_a_flag_never_inf():
     left = np.array([[0.0, 0.0], [100.0, 50.0]])
     right = np.array([[0.0, 0.0], [100.0 * 20 / 19, 50.0 * 20 / 19]])  # second: Z 20 -> 19
     r = triangulate_midpoint(left, right, np.eye(3), [0.0, 0.0, 1.0], F, pixel_std=1.0)
-    assert r.status.tolist() == [TRIANGULATION_PARALLEL_RAYS, TRIANGULATION_OK]
+    # the package's one point status: parallel rays are a degenerate point
+    assert [PointStatus(s).label for s in r.status] == ["degenerate", "ok"]
     assert np.isnan(r.points[0]).all() and np.isnan(r.covariances[0]).all()
     assert not np.isinf(r.points).any() and not np.isinf(r.covariances).any()
     np.testing.assert_allclose(r.points[1], [4.0, 2.0, 19.0], rtol=1e-9)
@@ -123,7 +120,7 @@ def test_parallel_rays_among_many_give_nan_and_a_flag_never_inf():
 def test_point_behind_the_camera_is_flagged():
     # Rays diverging backwards: image points that imply negative depth.
     r = triangulate_midpoint(np.array([[50.0, 0.0]]), np.array([[60.0, 0.0]]), np.eye(3), [1.0, 0.0, 0.0], F)
-    assert r.status[0] == TRIANGULATION_BEHIND_CAMERA
+    assert PointStatus(r.status[0]).label == "behind_camera"
     assert r.points[0, 2] < 0
 
 
