@@ -76,6 +76,7 @@ import numpy as np
 from .._validation import as_float_array
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..estimation.kalman import KalmanFilter
+from ..estimation.models import initial_state
 from .detect import detect_corners
 from .differential import AnchorTemplates, DifferentialFrame, measure_differential, prepare_differential_frame
 from .matching import PreparedFrame, TemplateSpectra, match_templates, prepare_frame, refine_translation, sample_patches
@@ -438,7 +439,7 @@ class Tracker:
     def _add_to_filter(self, rows: _Rows, first: np.ndarray, second: np.ndarray, found: np.ndarray, scores: np.ndarray) -> _FrameRecord:
         """Start the filter of new tracks at their second frame: s0 = [x₁, y₁, x₁ - x₀, y₁ - y₀], Σ0."""
         n = len(rows)
-        states = np.concatenate([second, second - first], axis=1)
+        states = initial_state(first, second)
         covariances = np.broadcast_to(self.model.P0, (n, 4, 4)).copy()
         # Found: still initialising (a measurement, with the start-up prior Σ0 as covariance).
         record = _FrameRecord(rows.ids.copy(), states, covariances, np.where(found, INITIALISING, PREDICTED).astype(np.int8), scores)
