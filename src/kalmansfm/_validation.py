@@ -53,11 +53,13 @@ def check_covariance(name: str, cov: np.ndarray, *, allow_singular: bool = False
 
 
 def check_positive(name: str, value: object, unit: str = "") -> float:
-    """Return ``value`` as a float or raise unless it is a finite number > 0.
+    """Return ``value`` as a float or raise unless it is a finite number > 0 (bools refused).
 
     ``unit`` (e.g. ``"pixels"``) is shown in the message.
     """
     shown = f" ({unit})" if unit else ""
+    if isinstance(value, (bool, np.bool_)):
+        raise InvalidInputError(f"{name} must be a number{shown}; got {value!r}")
     try:
         number = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):

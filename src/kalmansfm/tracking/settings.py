@@ -8,13 +8,12 @@ report draws the gate they define.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy.stats import chi2
 
-from .._validation import check_count
+from .._validation import check_count, check_positive
 from ..errors import InvalidInputError
 from ..estimation.models import LinearGaussianModel, constant_velocity_2d
 
@@ -72,13 +71,6 @@ def gate_probability_for_radius(radius: float) -> float:
     0.9
     """
     return float(-np.expm1(-0.5 * radius * radius))
-
-
-def _positive(name: str, value: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InvalidInputError(f"{name} must be a number; got {value!r}")
-    if not (math.isfinite(value) and value > 0):
-        raise InvalidInputError(f"{name} must be a positive number; got {value}")
 
 
 @dataclass(frozen=True)
@@ -178,7 +170,7 @@ class TrackerSettings:
         if self.template_policy not in TEMPLATE_POLICIES:
             raise InvalidInputError(f"template_policy must be one of {TEMPLATE_POLICIES}; got {self.template_policy!r}")
         if self.gate_radius is not None:
-            _positive("gate_radius", self.gate_radius)
+            object.__setattr__(self, "gate_radius", check_positive("gate_radius", self.gate_radius))
             # c² must stay a normal positive float for the search's squared distances
             if not 1e-6 <= self.gate_radius <= 1e6:
                 raise InvalidInputError(f"gate_radius must be between 1e-06 and 1e+06; got {self.gate_radius}")
@@ -191,14 +183,14 @@ class TrackerSettings:
         if check_count("max_search_radius", self.max_search_radius, 0) < 2:
             raise InvalidInputError(f"max_search_radius must be >= 2; got {self.max_search_radius}")
         for name in ("quality_level", "min_distance_px", "max_innovation_ratio", "forward_backward_px"):
-            _positive(name, getattr(self, name))
+            object.__setattr__(self, name, check_positive(name, getattr(self, name)))
         for name in ("min_ncc", "anchor_ncc", "reacquire_ncc"):
-            _positive(name, getattr(self, name))
+            object.__setattr__(self, name, check_positive(name, getattr(self, name)))
             if getattr(self, name) > 1:
                 raise InvalidInputError(f"{name} must be a correlation in (0, 1]; got {getattr(self, name)}")
         for name in ("max_dissimilarity", "anchor_dissimilarity"):
             if getattr(self, name) is not None:
-                _positive(name, getattr(self, name))
+                object.__setattr__(self, name, check_positive(name, getattr(self, name)))
         if not isinstance(self.model, LinearGaussianModel):
             raise InvalidInputError(f"model must be a LinearGaussianModel; got {type(self.model).__name__}")
         if self.model.F.shape != (4, 4) or self.model.H.shape != (2, 4):

@@ -177,7 +177,7 @@ def test_settings_check_the_differential_options():
         TrackerSettings(matcher="nearest")
     with pytest.raises(InvalidInputError, match="min_ncc must be a correlation in"):
         TrackerSettings(min_ncc=1.5)
-    with pytest.raises(InvalidInputError, match="forward_backward_px must be a positive number"):
+    with pytest.raises(InvalidInputError, match="forward_backward_px must be finite and > 0; got 0.0"):
         TrackerSettings(forward_backward_px=0.0)
     with pytest.raises(InvalidInputError, match="max_pyramid_level must be"):
         TrackerSettings(max_pyramid_level=-1)
