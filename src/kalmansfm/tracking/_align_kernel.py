@@ -112,6 +112,7 @@ def _fit(inner, gx, gy, centre, norm, centre_energy, well_posed_template, patch,
     hxx, hxy, hyy, bx, by = float(hxx), float(hxy), float(hyy), float(bx), float(by)
     ncc = float(cross) / math.sqrt(max(centre_energy * float(p_energy), 1e-12))
     sigma_sq = max(float(sum_wr2) / max(float(sum_w) - 4.0, 1.0), quantization)
+    # matching.well_posed_2x2, inline (compiled); the tests check the two agree
     det = hxx * hyy - hxy * hxy
     trace = hxx + hyy
     ok = well_posed_template and det > 1e-9 * max(trace, 1e-12) ** 2
@@ -174,7 +175,7 @@ def align_batch(padded, pad, templates, starts, centre, iterations, max_shift, s
                 h0yy += gy[k] * gy[k]
                 k += 1
         det0 = h0xx * h0yy - h0xy * h0xy
-        well_posed = det0 > 1e-9 * max(h0xx + h0yy, 1e-12) ** 2
+        well_posed = det0 > 1e-9 * max(h0xx + h0yy, 1e-12) ** 2  # matching.well_posed_2x2, inline
         min_eigenvalue[i] = (0.5 * (h0xx + h0yy) - math.sqrt(0.25 * (h0xx - h0yy) ** 2 + h0xy * h0xy)) / m
         norm = math.sqrt(norm_sq)
         x0 = starts[i, 0]

@@ -52,7 +52,7 @@ import cv2
 import numpy as np
 
 from ..errors import InvalidInputError
-from .matching import PreparedFrame, match_templates, prepare_frame, sample_patches
+from .matching import PreparedFrame, match_templates, prepare_frame, sample_patches, well_posed_2x2
 
 __all__ = [
     "ACCEPTED",
@@ -241,8 +241,7 @@ def _template_terms(templates: np.ndarray) -> _TemplateTerms:
     inner = inner - inner.mean(axis=1, keepdims=True)
     H = (gradients @ np.swapaxes(gradients, 1, 2)).astype(np.float64)
     hxx, hxy, hyy = H[:, 0, 0], H[:, 0, 1], H[:, 1, 1]
-    det = hxx * hyy - hxy * hxy
-    well_posed = det > 1e-9 * np.maximum(hxx + hyy, 1e-12) ** 2
+    det, well_posed = well_posed_2x2(hxx, hxy, hyy)
     safe_det = np.where(well_posed, det, 1.0)
     # H⁻¹ = [[hyy, -hxy], [-hxy, hxx]] / det
     inverse = np.stack([hyy, -hxy, -hxy, hxx], axis=1).reshape(n, 2, 2) / safe_det[:, None, None]
@@ -295,8 +294,8 @@ def _compare(terms: _TemplateTerms, patches: np.ndarray) -> _Fit:
     sigma_sq = np.maximum(sigma_sq, _QUANTIZATION_VARIANCE)
     H = ((terms.gradients * weights[:, None, :]) @ np.swapaxes(terms.gradients, 1, 2)).astype(np.float64)
     hxx, hxy, hyy = H[:, 0, 0], H[:, 0, 1], H[:, 1, 1]
-    det = hxx * hyy - hxy * hxy
-    well_posed = terms.well_posed & (det > 1e-9 * np.maximum(hxx + hyy, 1e-12) ** 2)
+    det, conditioned = well_posed_2x2(hxx, hxy, hyy)
+    well_posed = terms.well_posed & conditioned
     inverse = np.stack([hyy, -hxy, -hxy, hxx], axis=1).reshape(n, 2, 2) / np.where(well_posed, det, 1.0)[:, None, None]
     b = (terms.gradients @ weighted[:, :, None])[:, :, 0].astype(np.float64)
     step = np.where(well_posed[:, None], np.einsum("nij,nj->ni", inverse, b), 0.0)

@@ -39,7 +39,28 @@ __all__ = [
     "TemplateSpectra",
     "sample_patches",
     "subpixel_peak",
+    "well_posed_2x2",
 ]
+
+#: A 2×2 symmetric matrix is well posed (safely invertible) when det > WELL_POSED_RATIO · trace².
+WELL_POSED_RATIO = 1e-9
+
+
+def well_posed_2x2(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The determinant of [[a, b], [b, c]] and whether it is well posed: det > 1e-9 · max(trace, 1e-12)².
+
+    The one conditioning test of the matchers' 2×2 normal matrices (Σ ∇T ∇Tᵀ): the ratio of
+    the eigenvalues must exceed about 1e-9.  Elementwise on arrays; the numba kernel of
+    :mod:`._align_kernel` writes the same test inline (the tests check they agree).
+
+    Examples
+    --------
+    >>> det, ok = well_posed_2x2(np.array([4.0, 1.0]), np.array([0.0, 1.0]), np.array([9.0, 1.0]))
+    >>> det.tolist(), ok.tolist()
+    ([36.0, 0.0], [True, False])
+    """
+    det = a * c - b * b
+    return det, det > WELL_POSED_RATIO * np.maximum(a + c, 1e-12) ** 2
 
 @dataclass(frozen=True)
 class PreparedFrame:
@@ -604,8 +625,7 @@ def refine_translation(
         [np.einsum("nij,nij->n", gx, gx), np.einsum("nij,nij->n", gx, gy), np.einsum("nij,nij->n", gx, gy), np.einsum("nij,nij->n", gy, gy)],
         axis=1,
     ).reshape(n, 2, 2)
-    det = hessian[:, 0, 0] * hessian[:, 1, 1] - hessian[:, 0, 1] ** 2
-    well_posed = det > 1e-9 * np.maximum(hessian[:, 0, 0] + hessian[:, 1, 1], 1e-12) ** 2
+    _, well_posed = well_posed_2x2(hessian[:, 0, 0], hessian[:, 0, 1], hessian[:, 1, 1])
     inv_h = np.linalg.inv(np.where(well_posed[:, None, None], hessian, np.eye(2)))
     t_norm = np.sqrt(np.einsum("nij,nij->n", t_in, t_in))
     current = positions.copy()

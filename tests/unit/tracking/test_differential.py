@@ -215,3 +215,35 @@ def test_the_compiled_alignment_matches_its_numpy_reference(iterations):
     for name, tolerance in (("positions", 1e-4), ("ncc", 1e-5), ("covariances", 1e-5), ("min_eigenvalue", 1e-4),
                             ("residual_variance", 1e-3), ("patches", 1e-3)):
         np.testing.assert_allclose(getattr(compiled, name), getattr(reference, name), rtol=1e-4, atol=tolerance, err_msg=name)
+
+
+def test_one_well_posedness_test_for_the_numpy_paths_and_the_compiled_kernel():
+    """matching.well_posed_2x2 decides for the NumPy reference; the kernel's inline copy agrees."""
+    from kalmansfm.tracking.differential import _align_compiled, _align_numpy
+    from kalmansfm.tracking.matching import well_posed_2x2
+
+    r, c = np.mgrid[0:11, 0:11].astype(np.float32)
+    rng = np.random.default_rng(3)
+    templates = np.stack([
+        np.full((11, 11), 80.0, np.float32),  # flat: H = 0
+        100.0 * (c > 5),  # vertical edge: gy = 0, det = 0
+        100.0 * (r > 5),  # horizontal edge
+        100.0 * (r + c > 10),  # diagonal edge: gx = gy, det = 0 exactly
+        100.0 * ((r > 5) & (c > 5)),  # corner: well posed
+        rng.uniform(0, 255, (11, 11)),  # texture: well posed
+    ]).astype(np.float32)
+    terms = _template_terms(templates)
+    g = terms.gradients.astype(np.float64)
+    det, expected = well_posed_2x2((g[:, 0] ** 2).sum(1), (g[:, 0] * g[:, 1]).sum(1), (g[:, 1] ** 2).sum(1))
+    assert expected.tolist() == [False, False, False, False, True, True]
+    assert terms.well_posed.tolist() == expected.tolist()
+    frame_image = np.full((60, 60), 80.0)
+    points = np.array([[30.0, 30.0]] * len(templates))
+    for k, t in enumerate(templates):  # the frame shows each template where it is aligned (one at a time)
+        image = frame_image.copy()
+        image[25:36, 25:36] = t
+        frame = prepare_differential_frame(image, 11)
+        bank = AnchorTemplates(templates[k:k + 1])
+        compiled = _align_compiled(frame, bank, points[k:k + 1], 2, 1.5)
+        reference = _align_numpy(frame, AnchorTemplates(templates[k:k + 1]), points[k:k + 1], 2, 1.5)
+        assert np.isnan(compiled.covariances).all() == np.isnan(reference.covariances).all() == (not expected[k]), k
