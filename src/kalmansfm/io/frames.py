@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
+from ..tracking.grey import colour_to_grey
 from .atomic import OutputDirectory
 
 __all__ = [
@@ -121,7 +122,8 @@ def quiet_decoders() -> Iterator[None]:
 def grey_uint8(image: np.ndarray) -> np.ndarray:
     """A decoded image as (H, W) uint8 grey.
 
-    Colour becomes grey; 16-bit values are divided by 257; floating-point images (such as
+    Colour (BGR, BGRA) becomes grey by :func:`kalmansfm.tracking.grey.colour_to_grey`, the
+    tracker's policy too; 16-bit values are divided by 257; floating-point images (such as
     32-bit TIFF) are taken to hold intensities in [0, 1] when no value exceeds 1 and in
     [0, 255] otherwise (NaN becomes 0).
 
@@ -132,8 +134,7 @@ def grey_uint8(image: np.ndarray) -> np.ndarray:
     >>> grey_uint8(np.array([[0, 65535]], np.uint16)).tolist()
     [[0, 255]]
     """
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    image = colour_to_grey(image)
     if image.dtype == np.uint8:
         return image
     if image.dtype.kind == "f":
@@ -156,6 +157,8 @@ def _decode_image(path: Path) -> np.ndarray:
                 image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     if image is None or image.ndim not in (2, 3) or image.size == 0:
         raise InvalidInputError(f"{path} is not a readable image (empty, truncated or not an image)")
+    if image.ndim == 3 and image.shape[2] not in (3, 4):
+        raise InvalidInputError(f"{path} has {image.shape[2]} channels; an image must be grey, BGR or BGRA")
     return grey_uint8(image)
 
 
@@ -215,7 +218,7 @@ def _video_frames(path: Path) -> Iterator[np.ndarray]:
                 if not ok:
                     break
                 produced += 1
-                yield frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+                yield colour_to_grey(frame)
     finally:
         capture.release()
     if produced:

@@ -78,6 +78,7 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from ..estimation.kalman import KalmanFilter
 from ..estimation.models import initial_state
 from .detect import detect_corners
+from .grey import colour_to_grey
 from .differential import AnchorTemplates, DifferentialFrame, measure_differential, prepare_differential_frame
 from .matching import PreparedFrame, TemplateSpectra, match_templates, prepare_frame, refine_translation, sample_patches
 from .settings import TrackerSettings
@@ -173,13 +174,15 @@ class _Rows:
 def _as_grey(frame: object, index: int, keep_8_bits: bool = False) -> np.ndarray:
     """The frame as a 2D float32 array (exact for 8- and 16-bit images; single precision is all the matcher uses).
 
+    Colour (BGR or BGRA) becomes grey by :func:`~kalmansfm.tracking.grey.colour_to_grey`, as in the frame readers.
+
     With ``keep_8_bits`` a 2D uint8 frame is returned as it is (the differential matcher reads 8 bits).
     """
     array = np.asarray(frame)
+    if array.ndim == 3 and array.shape[2] in (3, 4) and array.dtype.kind in "buif":
+        array = colour_to_grey(np.ascontiguousarray(array))  # BGR(A), the one policy of the readers too
     if keep_8_bits and array.ndim == 2 and array.dtype == np.uint8:
         return np.ascontiguousarray(array)
-    if array.ndim == 3 and array.shape[2] in (3, 4):
-        array = array[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR weights as OpenCV
     if array.ndim != 2:
         raise InvalidInputError(f"frame {index} must be a 2D grey image (H, W); got shape {array.shape}")
     if not np.issubdtype(array.dtype, np.number):
