@@ -10,7 +10,7 @@ import pytest
 from kalmansfm.cli.main import main
 from kalmansfm.errors import Interrupted, InvalidInputError
 from kalmansfm.io import read_summary
-from kalmansfm.pipeline.batch import folder_name, process_sequence, run_batch
+from kalmansfm.pipeline.batch import BatchRow, batch_summary_csv, folder_name, process_sequence, run_batch
 from kalmansfm.scenes import render_scene, write_scene
 
 
@@ -135,3 +135,16 @@ def test_ctrl_c_during_a_batch_says_what_finished(tmp_path, monkeypatch):
     with pytest.raises(Interrupted, match=r"^0 of 1 sequences finished \(their run folders are in .*out; "
                                           r"batch_summary\.csv was not written\); run the same command again"):
         run_batch(["scene:1"], tmp_path / "out", n_workers=1)
+
+
+def test_the_batch_summary_spells_numbers_as_every_csv_of_the_package():
+    import csv
+    import io
+
+    rows = [BatchRow("scene:1", "out/scene-1", "ok", 30, 8, 2 / 3, 0.1 + 0.2, float("nan"), warnings=("a", "b")),
+            BatchRow("x,y", "out/x", "failed", error='ValueError: "bad", really')]
+    text = batch_summary_csv(rows)
+    read = list(csv.DictReader(io.StringIO(text)))
+    assert float(read[0]["fraction_tracked"]) == 2 / 3 and float(read[0]["residual_rms_px"]) == 0.1 + 0.2
+    assert read[0]["seconds"] == ""  # no value: an empty cell (was 'nan')
+    assert read[0]["warnings"] == "a | b" and read[1]["sequence"] == "x,y" and read[1]["error"] == 'ValueError: "bad", really'

@@ -173,11 +173,15 @@ def structure_ply(track_ids: np.ndarray, points: np.ndarray, *, comment: str = "
 def motion_csv(frames: np.ndarray, motion: np.ndarray, translation: np.ndarray) -> str:
     """``frame,i_x,i_y,i_z,j_x,j_y,j_z,t_x,t_y`` text, one line per reconstructed frame.
 
+    Numbers are written as every CSV writer of ``io`` writes them (:func:`._csv.number`, the
+    shortest text that reads back as the same float); older files, written with 10
+    significant digits, are read as well.
+
     Examples
     --------
     >>> print(motion_csv([0], np.eye(3)[None, :2], np.array([[5.0, 6.0]])), end="")
     frame,i_x,i_y,i_z,j_x,j_y,j_z,t_x,t_y
-    0,1,0,0,0,1,0,5,6
+    0,1.0,0.0,0.0,0.0,1.0,0.0,5.0,6.0
     """
     f = np.asarray(frames)
     m = np.asarray(motion, dtype=np.float64)
@@ -186,7 +190,7 @@ def motion_csv(frames: np.ndarray, motion: np.ndarray, translation: np.ndarray) 
         raise InvalidInputError(f"need frames (F,), motion (F, 2, 3), translation (F, 2); got {f.shape}, {m.shape}, {t.shape}")
     rows = np.hstack([m.reshape(-1, 6), t])
     keep = np.isfinite(rows).all(axis=1)
-    return csv_text(MOTION_COLUMNS, ([frame, *(f"{v:.10g}" for v in values)]
+    return csv_text(MOTION_COLUMNS, ([frame, *(number(v) for v in values)]
                                      for frame, values in zip(f[keep].tolist(), rows[keep].tolist())))
 
 

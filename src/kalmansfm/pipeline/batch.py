@@ -23,11 +23,12 @@ import re
 import signal
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from ..errors import Interrupted, InvalidInputError, KalmanSfmError
+from ..io._csv import number
 from ..io.atomic import atomic_write, check_output_directory
 from ..io.frames import read_frames
 from ..io.summary import SUMMARY_FILE, RunSource, RunSummary, read_summary
@@ -289,12 +290,29 @@ def run_batch(
                 ) from None
 
     ordered = tuple(rows[k] for k in range(len(sequences)))
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(asdict(ordered[0]).keys()), lineterminator="\n")
-    writer.writeheader()
-    for row in ordered:
-        writer.writerow({k: " | ".join(v) if isinstance(v, tuple) else "" if v is None else v
-                         for k, v in asdict(row).items()})
+    text = batch_summary_csv(ordered)
     root.mkdir(parents=True, exist_ok=True)
-    summary_path = atomic_write(root / BATCH_SUMMARY_FILE, lambda p: p.write_text(buffer.getvalue(), encoding="utf-8"))
+    summary_path = atomic_write(root / BATCH_SUMMARY_FILE, lambda p: p.write_text(text, encoding="utf-8"))
     return BatchResult(ordered, summary_path)
+
+
+def batch_summary_csv(rows: Sequence[BatchRow]) -> str:
+    """``batch_summary.csv``: one line per row, the fields of :class:`BatchRow` as columns.
+
+    Numbers as every CSV of the package writes them (:func:`kalmansfm.io._csv.number`: the
+    shortest round-trip text, an empty cell for no value); texts quoted where CSV needs it;
+    the warnings joined by `` | ``.
+
+    Examples
+    --------
+    >>> print(batch_summary_csv([BatchRow("scene:1", "out/scene-1", "ok", 30, 8, 1.0, 0.25, float("nan"))]), end="")
+    sequence,output,status,frames,tracks,fraction_tracked,residual_rms_px,seconds,error,warnings
+    scene:1,out/scene-1,ok,30,8,1.0,0.25,,,
+    """
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=[f.name for f in fields(BatchRow)], lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: " | ".join(v) if isinstance(v, tuple) else "" if v is None else number(v) if isinstance(v, float)
+                         else v for k, v in asdict(row).items()})
+    return buffer.getvalue()

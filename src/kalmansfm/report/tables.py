@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..experiments.fusion_tasks import FusionTable
+from ..io._csv import csv_text, number
 
 __all__ = ["format_csv", "format_text"]
 
@@ -29,7 +30,8 @@ def _column_groups(table: FusionTable) -> list[tuple[str, np.ndarray]]:
 
 
 def format_csv(table: FusionTable) -> str:
-    """The table as CSV with a header line; numbers at full (round-trip) precision.
+    """The table as CSV with a header line; numbers as every CSV of the package writes them
+    (:func:`kalmansfm.io._csv.number`: full round-trip precision, an empty cell for NaN).
 
     Columns: ``iter,truth,meas,meas_std,kalman,kalman_std`` for d = 1, and
     ``iter,truth_x,truth_y,truth_z,meas_x,...,kalman_std_z`` for d = 3.
@@ -50,9 +52,7 @@ def format_csv(table: FusionTable) -> str:
     else:
         header = ["iter"] + [f"{name}_{axis}" for name, _ in groups for axis in _axis_names(d)]
     values = np.concatenate([array for _, array in groups], axis=1)
-    lines = [",".join(header)]
-    lines += [",".join([str(k + 1)] + [repr(float(v)) for v in row]) for k, row in enumerate(values)]
-    return "\n".join(lines) + "\n"
+    return csv_text(header, ([k + 1, *map(number, row)] for k, row in enumerate(values)))
 
 
 def _aligned(groups: list[tuple[str, list[str], np.ndarray]], decimals: int) -> list[str]:

@@ -147,4 +147,24 @@ def test_csv_writers_round_trip():
     motion = np.stack([np.eye(3)[:2], np.full((2, 3), np.nan)])
     text = motion_csv([0, 1], motion, np.array([[1.0, 2.0], [3.0, 4.0]]))
     assert text.splitlines()[0] == "frame,i_x,i_y,i_z,j_x,j_y,j_z,t_x,t_y"
-    assert text.splitlines()[1:] == ["0,1,0,0,0,1,0,1,2"]
+    assert text.splitlines()[1:] == ["0,1.0,0.0,0.0,0.0,1.0,0.0,1.0,2.0"]
+
+
+def test_motion_csv_numbers_read_back_as_the_same_floats_and_old_files_still_read(tmp_path):
+    from kalmansfm.io.structure import read_motion_csv
+
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    motion = np.stack([q[:2], (q * 1.0000001)[:2]])
+    translation = rng.normal(size=(2, 2)) * 123.456789
+    path = tmp_path / "motion.csv"
+    path.write_text(motion_csv([0, 1], motion, translation))
+    back = read_motion_csv(path)
+    np.testing.assert_array_equal(np.stack([back.i_rows, back.j_rows], axis=1), motion)  # bit for bit
+    np.testing.assert_array_equal(back.translations, translation)
+    # a file of the earlier writer ('%.10g')
+    old = tmp_path / "old_motion.csv"
+    old.write_text("frame,i_x,i_y,i_z,j_x,j_y,j_z,t_x,t_y\n0,1,0,0,0,1,0,5,6\n3,0.6,0.8,0,-0.8,0.6,0,1.234567891,-2\n")
+    back = read_motion_csv(old)
+    assert back.frames.tolist() == [0, 3]
+    np.testing.assert_array_equal(back.translations, [[5.0, 6.0], [1.234567891, -2.0]])

@@ -28,6 +28,15 @@ def test_csv_round_trips_every_value():
     np.testing.assert_array_equal(values[:, 13:16], t.estimate_std)
 
 
+def test_csv_spells_numbers_as_every_csv_of_the_package():
+    from kalmansfm.io._csv import number
+
+    t = FusionTable(7, "", [[10.0], [10.0]], [[0.1 + 0.2], [np.nan]], [[1.0], [1.0]], [[10.2], [10.05]], [[1.0], [0.5]])
+    lines = format_csv(t).splitlines()
+    assert lines[1] == f"1,10.0,{number(0.1 + 0.2)},1.0,10.2,1.0"
+    assert lines[2] == "2,10.0,,1.0,10.05,0.5"  # no measurement: an empty cell, as in structure.csv
+
+
 def test_csv_1d_header():
     assert format_csv(_table(2, 1)).splitlines()[0] == "iter,truth,meas,meas_std,kalman,kalman_std"
 
