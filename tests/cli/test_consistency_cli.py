@@ -24,7 +24,7 @@ def test_task2_text_summary_passes(main, capsys):
 
 
 def test_task7_pairs_reports_over_confidence_and_progress_goes_to_stderr(main, capsys):
-    assert main(["consistency", "--task", "7", "--runs", "120", "--pixel-noise", "1"]) == 0
+    assert main(["consistency", "--task", "7", "--runs", "120", "--pixel-std", "1"]) == 0
     captured = capsys.readouterr()
     assert captured.out.strip().splitlines()[-1] == "FAIL: over-confident"
     assert "run" in captured.err  # the tqdm bar
@@ -46,7 +46,8 @@ def test_task7_batch_csv_has_one_row_per_iteration(main, capsys):
         (["--task", "2", "--method", "batch"], "--method applies to --task 7 only"),
         (["--task", "7", "--runs", "1"], "--runs must be an integer >= 2"),
         (["--task", "7", "--focal", "0"], "--focal must be finite and > 0"),
-        (["--task", "7", "--pixel-noise", "-2"], "--pixel-noise must be finite and > 0"),
+        (["--task", "7", "--pixel-std", "-2"], "--pixel-std must be finite and > 0"),
+        (["--task", "7", "--pixel-noise", "-2"], "--pixel-std must be finite and > 0"),  # the earlier spelling
         (["--task", "5"], "invalid choice"),
         (["--task", "7", "--method", "ekf"], "invalid choice"),
     ],
@@ -69,7 +70,7 @@ def _task7_args(*argv):
 
 def run_task7(args):
     """What ``kalmansfm tables --task 7`` computes from its options."""
-    return fusion_table(7, method=args.method, seed=args.seed, focal=args.focal, pixel_noise_std=args.pixel_noise)
+    return fusion_table(7, method=args.method, seed=args.seed, focal=args.focal, pixel_noise_std=args.pixel_std)
 
 
 def test_run_task7_returns_a_fusion_table_in_the_task4_6_columns():
@@ -109,3 +110,17 @@ def test_task7_default_method_is_one_constant_shown_by_help(main, capsys):
     assert run_consistency(7, runs=2).method == TASK7_DEFAULT_METHOD
     for f in (task7_consistency, table_of):
         assert TASK7_DEFAULT_METHOD in (f.__kwdefaults__ or {}).values() or TASK7_DEFAULT_METHOD in f.__defaults__
+
+
+@pytest.mark.parametrize("command", ["tables", "consistency"])
+def test_pixel_std_is_the_spelling_of_every_command_and_pixel_noise_still_works(command):
+    from kalmansfm.cli.main import build_parser
+
+    parser = build_parser()
+    base = [command, "--task", "7"]
+    assert parser.parse_args(base + ["--pixel-std", "2.5"]).pixel_std == 2.5
+    assert parser.parse_args(base + ["--pixel-noise", "2.5"]).pixel_std == 2.5
+    sub = parser._subparsers._group_actions[0].choices[command]
+    text = sub.format_help()
+    assert "--pixel-std PX" in text and "--pixel-noise" not in text
+    assert "--pixel-std" in parser._subparsers._group_actions[0].choices["fuse"].format_help()

@@ -1,5 +1,6 @@
 """Every ``--help``: each useful default once, none for required options or missing defaults, no stray ``%%``."""
 
+import argparse
 import re
 
 import pytest
@@ -38,7 +39,7 @@ def test_each_default_is_shown_once_and_only_when_there_is_one(command, capsys):
     entries = option_entries(text)
     for action in parser._actions:
         name = action.option_strings[-1] if action.option_strings else None
-        if name is None or name == "--help":
+        if name is None or name == "--help" or action.help == argparse.SUPPRESS:  # a hidden alias
             continue
         shown = entries[name]
         assert shown.count("default") <= 1, f"{command} {name}: {shown}"

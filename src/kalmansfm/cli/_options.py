@@ -17,7 +17,7 @@ from contextlib import contextmanager
 from ..errors import KalmanSfmError
 from ..io.summary import RunSummary
 
-__all__ = ["HelpFormatter", "as_typed", "print_warnings"]
+__all__ = ["HelpFormatter", "add_hidden_alias", "as_typed", "print_warnings"]
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -54,6 +54,23 @@ class HelpFormatter(argparse.HelpFormatter):
             shown = str(default)
         # argparse %-formats a help text: a literal % in the default must be doubled
         return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+def add_hidden_alias(parser: argparse.ArgumentParser | argparse._ArgumentGroup, alias: str, dest: str,
+                     type: object = None) -> None:
+    """Accept ``alias`` as an old spelling of the option stored in ``dest``, not shown in ``--help``.
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser(prog="x")
+    >>> _ = parser.add_argument("--pixel-std", type=float, default=1.0, help="noise")
+    >>> add_hidden_alias(parser, "--pixel-noise", "pixel_std", float)
+    >>> parser.parse_args(["--pixel-noise", "2"]).pixel_std, parser.parse_args([]).pixel_std
+    (2.0, 1.0)
+    >>> "--pixel-noise" in parser.format_help()
+    False
+    """
+    parser.add_argument(alias, dest=dest, type=type, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
 
 @contextmanager

@@ -13,7 +13,7 @@ from ..experiments.consistency import SPACES, ConsistencyResult, run_consistency
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..structure.landmark import TASK7_DEFAULT_METHOD
 from ..structure.point_fusion import FUSION_METHODS
-from ._options import as_typed
+from ._options import add_hidden_alias, as_typed
 
 _AXES = {1: ["distance"], 3: ["x", "y", "z"]}
 _STATE_AXES = ["x/z", "y/z", "1/z"]
@@ -44,8 +44,9 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated noise")
     p.add_argument("--focal", type=float, default=DEFAULT_FOCAL, help="Task 7 focal length, pixels")
     p.add_argument(
-        "--pixel-noise", type=float, default=DEFAULT_PIXEL_NOISE_STD, help="Task 7 image noise std, pixels"
+        "--pixel-std", type=float, default=DEFAULT_PIXEL_NOISE_STD, metavar="PX", help="Task 7 image noise std, pixels"
     )
+    add_hidden_alias(p, "--pixel-noise", "pixel_std", float)  # the earlier spelling
     p.add_argument(
         "--space", choices=[x.replace("_", "-") for x in SPACES], default="point",
         help="Task 7: judge the point (x, y, z) in the current camera frame, or (--method recursive) the "
@@ -113,9 +114,9 @@ def run(args: argparse.Namespace) -> int:
         bars[0].update(n)
 
     try:
-        with as_typed({"runs": "--runs", "seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-noise"}):
+        with as_typed({"runs": "--runs", "seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-std"}):
             result = run_consistency(
-                args.task, args.method if args.task == 7 else None, args.runs, args.seed, args.focal, args.pixel_noise, progress=progress,
+                args.task, args.method if args.task == 7 else None, args.runs, args.seed, args.focal, args.pixel_std, progress=progress,
                 space=args.space.replace("-", "_"),
             )
     finally:

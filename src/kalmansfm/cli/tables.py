@@ -10,7 +10,7 @@ from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..report.tables import format_csv, format_text
 from ..structure.landmark import TASK7_DEFAULT_METHOD
 from ..structure.point_fusion import FUSION_METHODS
-from ._options import as_typed
+from ._options import add_hidden_alias, as_typed
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -51,15 +51,16 @@ def add_task7_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--seed", type=int, default=0, help="seed of the simulated image noise")
     group.add_argument("--focal", type=float, default=DEFAULT_FOCAL, help="focal length, pixels")
     group.add_argument(
-        "--pixel-noise", type=float, default=DEFAULT_PIXEL_NOISE_STD, help="image noise standard deviation, pixels"
+        "--pixel-std", type=float, default=DEFAULT_PIXEL_NOISE_STD, metavar="PX", help="image noise standard deviation, pixels"
     )
+    add_hidden_alias(group, "--pixel-noise", "pixel_std", float)  # the earlier spelling
 
 
 def run(args: argparse.Namespace) -> int:
     """Compute the table and print it to stdout."""
-    with as_typed({"seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-noise"}):
+    with as_typed({"seed": "--seed", "focal": "--focal", "pixel_noise_std": "--pixel-std"}):
         table = fusion_table(args.task, method=args.method, seed=args.seed, focal=args.focal,
-                             pixel_noise_std=args.pixel_noise)
+                             pixel_noise_std=args.pixel_std)
     text = format_csv(table) if args.format == "csv" else format_text(table)
     print(text, end="" if text.endswith("\n") else "\n")
     return 0
