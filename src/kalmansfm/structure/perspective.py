@@ -44,6 +44,7 @@ without parallax is refused with a message saying so.
 
 from __future__ import annotations
 
+from ..errors import InvalidInputError
 from .bundle import single_threaded_blas
 from .calibrated import (
     COVARIANCE_GAUGE,
@@ -69,8 +70,8 @@ __all__ = [
 
 
 @single_threaded_blas
-def reconstruct_perspective(observations: object, intrinsics: object, method: str = "batch", *,
-                            outlier_threshold_px: float = DEFAULT_OUTLIER_THRESHOLD_PX,
+def reconstruct_perspective(observations: object, intrinsics: object, method: str | None = None, *,
+                            outlier_threshold_px: float | None = None,
                             settings: PerspectiveSettings | None = None) -> PerspectiveReconstruction:
     """Camera poses and 3-D points from calibrated point tracks, with covariances in the free-network gauge.
 
@@ -81,15 +82,16 @@ def reconstruct_perspective(observations: object, intrinsics: object, method: st
         track is not observed.
     intrinsics : (3, 3) or (F, 3, 3)
         K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of every frame (or one for all).
-    method : {"batch", "recursive"}
+    method : {"batch", "recursive"}, default "batch"
         ``"batch"``: incremental reconstruction and bundle adjustment (the
         module docstring); ``"recursive"``: the report's relative orientation of
         consecutive frames and recursive structure fusion (:mod:`.recursive`).
-    outlier_threshold_px : float
+    outlier_threshold_px : float, default :data:`DEFAULT_OUTLIER_THRESHOLD_PX`
         An observation farther than this (pixels) from where the other views put
         its point is an outlier (unless the estimated noise σ makes the χ² bound wider).
     settings : PerspectiveSettings, optional
-        All options at once (then ``method`` and ``outlier_threshold_px`` are ignored).
+        All options at once; then ``method`` and ``outlier_threshold_px`` must not be
+        given as well (they belong inside ``settings``).
 
     Returns
     -------
@@ -98,7 +100,8 @@ def reconstruct_perspective(observations: object, intrinsics: object, method: st
     Raises
     ------
     InvalidInputError
-        Bad shapes, non-finite positions, a missing or malformed K.
+        Bad shapes, non-finite positions, a missing or malformed K; ``settings`` given
+        together with ``method`` or ``outlier_threshold_px``.
     NotEnoughDataError
         No frame pair to start from: too few shared tracks, or no parallax (all
         points on a plane, a camera that only rotated).
@@ -112,7 +115,13 @@ def reconstruct_perspective(observations: object, intrinsics: object, method: st
     (6, True, 0.5)
     """
     if settings is None:
-        settings = PerspectiveSettings(method=method, outlier_threshold_px=outlier_threshold_px)
+        defaults = PerspectiveSettings()
+        settings = PerspectiveSettings(
+            method=defaults.method if method is None else method,
+            outlier_threshold_px=defaults.outlier_threshold_px if outlier_threshold_px is None else outlier_threshold_px)
+    elif method is not None or outlier_threshold_px is not None:
+        raise InvalidInputError("reconstruct_perspective: give method and outlier_threshold_px inside settings, "
+                                "not beside it (settings would silently win)")
     obs, K = validate_tracks_and_intrinsics(observations, intrinsics)
     if settings.method == "recursive":
         return reconstruct_recursive(obs, K, settings)

@@ -169,3 +169,12 @@ def test_bad_input_is_refused_with_the_argument_named():
     bad[0, 0, 0] = np.inf
     with pytest.raises(InvalidInputError, match="frame 0, point 0"):
         reconstruct_perspective(bad, s.intrinsics)
+
+
+def test_a_keyword_beside_settings_is_refused_not_silently_overridden():
+    s = perspective_scene(frames=3, points=30, seed=0)
+    with pytest.raises(InvalidInputError, match="inside settings"):
+        reconstruct_perspective(s.observations, s.intrinsics, method="recursive", settings=PerspectiveSettings())
+    with pytest.raises(InvalidInputError, match="inside settings"):
+        reconstruct_perspective(s.observations, s.intrinsics, outlier_threshold_px=2.0,
+                                settings=PerspectiveSettings())
