@@ -121,7 +121,7 @@ def test_recursive_method_from_the_command_line(files):
     (["--camera", "perspective", "--intrinsics", "K.csv", "--focal", "700"], None, "exactly one of them"),
     (["--camera", "perspective", "--focal", "-3", "--image-size", "640", "480"], None, "focal must be finite and > 0"),
     (["--camera", "perspective", "--intrinsics", "K.csv", "--outlier-threshold", "0"], None,
-     "outlier_threshold_px must be finite and > 0"),
+     "--outlier-threshold must be finite and > 0"),
 ])
 def test_bad_input_is_one_line_and_leaves_no_folder(files, capsys, extra, k_text, message):
     if k_text is not None:

@@ -13,7 +13,7 @@ from ..pipeline import run_reconstruct
 from ..pipeline.perspective import CAMERA_MODELS
 from ..structure.factorization import DEFAULT_MAX_ITERATIONS
 from ..structure.perspective import PERSPECTIVE_METHODS, PerspectiveSettings
-from ._options import print_warnings
+from ._options import as_typed, print_warnings
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -65,16 +65,15 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.max_iterations < 1:
-        raise InvalidInputError(f"--max-iterations must be >= 1; got {args.max_iterations}")
     if args.camera == "affine" and (args.intrinsics is not None or args.focal is not None):
         raise InvalidInputError("--intrinsics and --focal describe a perspective camera: add --camera perspective "
                                 "(or auto)")
-    settings = PerspectiveSettings(method=args.method, outlier_threshold_px=args.outlier_threshold)
-    result = run_reconstruct(args.tracks, args.out, camera=args.camera, intrinsics=args.intrinsics,
-                             focal=args.focal, image_size=None if args.image_size is None else tuple(args.image_size),
-                             perspective=settings, weighted=not args.no_weights, smooth=args.smooth,
-                             max_iterations=args.max_iterations, plot=not args.no_plot)
+    with as_typed({"outlier_threshold_px": "--outlier-threshold", "max_iterations": "--max-iterations"}):
+        settings = PerspectiveSettings(method=args.method, outlier_threshold_px=args.outlier_threshold)
+        result = run_reconstruct(args.tracks, args.out, camera=args.camera, intrinsics=args.intrinsics,
+                                 focal=args.focal, image_size=None if args.image_size is None else tuple(args.image_size),
+                                 perspective=settings, weighted=not args.no_weights, smooth=args.smooth,
+                                 max_iterations=args.max_iterations, plot=not args.no_plot)
     if result.summary.perspective is not None:
         _print_perspective(result)
         return 0

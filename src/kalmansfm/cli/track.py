@@ -6,7 +6,6 @@ import argparse
 import logging
 import sys
 
-from ..errors import InvalidInputError
 from ..pipeline import run_track
 from ..tracking import TrackerSettings
 from ..tracking.settings import MATCHERS
@@ -16,34 +15,6 @@ log = logging.getLogger("kalmansfm")
 
 #: The tracker's defaults, shown in --help: defined once, in TrackerSettings.
 DEFAULTS = TrackerSettings()
-
-
-def _probability(text: str) -> float:
-    value = float(text)
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be in (0, 1); got {text}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0; got {text}")
-    return value
-
-
-def _odd_window(text: str) -> int:
-    value = int(text)
-    if value < 3 or value % 2 == 0:
-        raise argparse.ArgumentTypeError(f"must be an odd integer >= 3; got {text}")
-    return value
-
-
-def _count(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0; got {text}")
-    return value
 
 
 def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.ArgumentParser]) -> None:
@@ -64,29 +35,27 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument("--max-features", type=int, default=DEFAULTS.max_features, metavar="N",
                    help="corners to detect when --points is not given")
     gate = p.add_mutually_exclusive_group()
-    gate.add_argument("--gate", type=_probability, default=DEFAULTS.gate_probability, metavar="P",
+    gate.add_argument("--gate", type=float, default=DEFAULTS.gate_probability, metavar="P",
                       help="gate confidence level: c² is the chi-square 2-dof quantile of P")
-    gate.add_argument("--gate-radius", type=_positive_float, default=None, metavar="C", help="gate radius c directly")
+    gate.add_argument("--gate-radius", type=float, default=None, metavar="C", help="gate radius c directly")
     p.add_argument("--matcher", choices=MATCHERS, default=DEFAULTS.matcher,
                    help="differential: Lucas-Kanade from the Kalman prediction; search: the report's gated template search")
     p.add_argument("--score", choices=["ssd", "ncc"], default=DEFAULTS.score, help="template score (--matcher search)")
-    p.add_argument("--window", type=_odd_window, default=DEFAULTS.window, metavar="N", help="template side in pixels (odd)")
-    p.add_argument("--max-misses", type=_count, default=DEFAULTS.max_misses, metavar="N",
+    p.add_argument("--window", type=int, default=DEFAULTS.window, metavar="N", help="template side in pixels (odd)")
+    p.add_argument("--max-misses", type=int, default=DEFAULTS.max_misses, metavar="N",
                    help="frames a track may coast before it is lost (default: 3 with --matcher search, 5 with differential)")
     p.add_argument("--redetect", action="store_true", help="add new corners in empty regions as tracks are lost")
     p.add_argument("--smooth", action="store_true",
                    help="write RTS-smoothed positions and covariances (fixed interval: each frame uses all frames)")
-    p.add_argument("--smooth-lag", type=_count, default=None, metavar="L",
+    p.add_argument("--smooth-lag", type=int, default=None, metavar="L",
                    help="fixed-lag smoothing instead: frame t uses the frames up to t + L (implies --smooth)")
     p.set_defaults(run=run)
 
 
 def settings_from_args(args: argparse.Namespace) -> TrackerSettings:
     """The tracker settings the options ask for (the others keep their defaults)."""
-    if args.max_features < 1:
-        raise InvalidInputError(f"--max-features must be >= 1; got {args.max_features}")
     with as_typed({"window": "--window", "gate_probability": "--gate", "gate_radius": "--gate-radius",
-                   "max_misses": "--max-misses"}):
+                   "max_misses": "--max-misses", "max_features": "--max-features"}):
         return TrackerSettings(
             matcher=args.matcher,
             window=args.window,
@@ -101,8 +70,10 @@ def settings_from_args(args: argparse.Namespace) -> TrackerSettings:
 
 def run(args: argparse.Namespace) -> int:
     smooth: bool | int = args.smooth_lag if args.smooth_lag is not None else bool(args.smooth)
-    result = run_track(args.input, args.out, points=args.points, settings=settings_from_args(args), smooth=smooth,
-                       progress=not args.quiet)
+    settings = settings_from_args(args)
+    with as_typed({"smooth": "--smooth-lag"}):
+        result = run_track(args.input, args.out, points=args.points, settings=settings, smooth=smooth,
+                           progress=not args.quiet)
     m = result.summary.tracking
     print(
         f"tracked {m.tracks} points through {m.frames} frames; {m.alive_in_last_frame} alive at the end, "

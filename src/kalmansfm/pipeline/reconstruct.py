@@ -15,6 +15,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from .._validation import check_count
 from .._version import __version__
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
@@ -149,6 +150,7 @@ def run_reconstruct(
     """
     if camera not in CAMERA_MODELS:
         raise InvalidInputError(f"camera must be one of {', '.join(CAMERA_MODELS)}; got {camera!r}")
+    max_iterations = check_count("max_iterations", max_iterations, 1)
     inputs = [tracks_path] if camera == "affine" else [tracks_path, intrinsics]
     check_output_directory(out_dir, inputs=inputs)
     clock = Stopwatch()

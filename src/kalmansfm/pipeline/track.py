@@ -6,6 +6,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from .._validation import check_count
 from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames
 from ..io.summary import RunSummary, run_source
@@ -57,6 +58,8 @@ def run_track(
     >>> run.summary.tracking.frames, "tracks.npz" in run.summary.files
     (5, True)
     """
+    if not isinstance(smooth, bool):
+        smooth = check_count("smooth", smooth, 0)  # a lag in frames, checked before any decoding
     check_output_directory(out_dir, inputs=[input, points])
     clock = Stopwatch()
     sequence = read_frames(input)

@@ -46,8 +46,10 @@ _DEFAULT_ANCHOR_DISSIMILARITY = {"ssd": 0.3, "ncc": 0.05}
 _DEFAULT_MAX_MISSES = {"search": 3, "differential": 5}
 
 
-def gate_radius_for_probability(probability: float) -> float:
+def gate_radius_for_probability(probability: float, name: str = "gate probability") -> float:
     """Gate radius c such that a 2D Gaussian point falls in the gate with ``probability``.
+
+    ``name`` is how an error message calls the probability (e.g. the settings field).
 
     c² is the ``probability`` quantile of the chi-square distribution with 2
     degrees of freedom, because (p - p⁻)ᵀ Σ⁻¹ (p - p⁻) of a 2D Gaussian is χ²₂.
@@ -58,7 +60,7 @@ def gate_radius_for_probability(probability: float) -> float:
     2.4477
     """
     if not 0.0 < probability < 1.0:
-        raise InvalidInputError(f"gate probability must be in (0, 1); got {probability}")
+        raise InvalidInputError(f"{name} must be in (0, 1); got {probability}")
     return float(np.sqrt(chi2.ppf(probability, df=2)))
 
 
@@ -175,7 +177,7 @@ class TrackerSettings:
             if not 1e-6 <= self.gate_radius <= 1e6:
                 raise InvalidInputError(f"gate_radius must be between 1e-06 and 1e+06; got {self.gate_radius}")
         else:
-            gate_radius_for_probability(self.gate_probability)  # raises outside (0, 1)
+            gate_radius_for_probability(self.gate_probability, "gate_probability")  # raises outside (0, 1)
         if self.max_misses is not None:
             object.__setattr__(self, "max_misses", check_count("max_misses", self.max_misses, 0))
         for name, minimum in (("max_features", 1), ("redetect_every", 1), ("anchor_patience", 1), ("max_pyramid_level", 0)):
