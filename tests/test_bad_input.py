@@ -194,14 +194,14 @@ CASES = [
     ("consistency", "--task 7 --runs 3 --focal nan", "--focal must be finite and > 0"),
     # --- scene -------------------------------------------------------------------------------
     ("scene", "--out {out} --frames 1", "--frames must be an integer >= 3; got 1"),
-    ("scene", "--out {out} --size 0x10", "--size must be positive; got 0x10"),
-    ("scene", "--out {out} --size 40000x40000", "image_size must be (width, height) with integers in 32 … 4096"),
+    ("scene", "--out {out} --size 0x10", "--size must be (width, height) with integers in 32 … 4096; got (0, 10)"),
+    ("scene", "--out {out} --size 40000x40000", "--size must be (width, height) with integers in 32 … 4096"),
     ("scene", "--out {out} --size big", "argument --size: expected WIDTHxHEIGHT"),
     ("scene", "--out {out} --noise -1", "--noise must be a finite number >= 0; got -1.0"),
     ("scene", "--out {out} --noise nan", "--noise must be a finite number >= 0"),
     ("scene", "--out {out} --seed -1", "--seed must be a non-negative integer"),
     ("scene", "--out {out} --occluder 99,1,1", "--occluder TRACK must be in 0 … 9; got 99"),
-    ("scene", "--out {out} --occluder 2,-1,0", "--occluder TRACK,FIRST,N must hide frames within 0 … 29"),
+    ("scene", "--out {out} --occluder 2,-1,0", "--occluder TRACK,FIRST,N must hide at least one frame within 0 … 29; got 0 frame(s) from frame -1"),
     ("scene", "--out {out} --occluder-marker", "--occluder-marker needs --occluder"),
     ("scene", "--out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
 ]

@@ -78,20 +78,14 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     width, height = args.size
-    if width <= 0 or height <= 0:
-        raise InvalidInputError(f"--size must be positive; got {width}x{height}")
     occluder = None
     if args.occluder is not None:
         track_id, first_frame, n_frames = args.occluder
-        if n_frames < 1 or first_frame < 0 or first_frame + n_frames > args.frames:
-            raise InvalidInputError(
-                f"--occluder TRACK,FIRST,N must hide frames within 0 … {args.frames - 1} (--frames {args.frames}); "
-                f"got FIRST={first_frame}, N={n_frames}"
-            )
         occluder = Occluder(track_id=track_id, first_frame=first_frame, n_frames=n_frames, marker=args.occluder_marker)
     elif args.occluder_marker:
         raise InvalidInputError("--occluder-marker needs --occluder")
-    typed = {"n_frames": "--frames", "seed": "--seed", "pixel_noise_std": "--noise", "occluder.track_id": "--occluder TRACK"}
+    typed = {"n_frames": "--frames", "seed": "--seed", "pixel_noise_std": "--noise", "image_size": "--size",
+             "occluder.track_id": "--occluder TRACK", "occluder": "--occluder TRACK,FIRST,N"}
     with as_typed(typed):
         scene, files = run_scene(args.out, n_frames=args.frames, image_size=(width, height), seed=args.seed,
                                  pixel_noise_std=args.noise, occluder=occluder, scenario=args.scenario)

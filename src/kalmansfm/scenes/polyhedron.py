@@ -344,8 +344,8 @@ def _check_occluder(occluder: Occluder | dict | None, n_frames: int, n_points: i
         raise InvalidInputError(f"occluder.track_id must be in 0 … {n_points - 1}; got {occluder.track_id}")
     if occluder.n_frames < 1 or occluder.first_frame < 0 or occluder.first_frame + occluder.n_frames > n_frames:
         raise InvalidInputError(
-            f"occluder must hide frames within 0 … {n_frames - 1}; got first_frame={occluder.first_frame}, "
-            f"n_frames={occluder.n_frames}"
+            f"occluder must hide at least one frame within 0 … {n_frames - 1}; got {occluder.n_frames} frame(s) "
+            f"from frame {occluder.first_frame}"
         )
     if occluder.height_px is not None and not occluder.height_px > 0:
         raise InvalidInputError(f"occluder.height_px must be positive or None; got {occluder.height_px}")
