@@ -19,7 +19,10 @@ cv2.setNumThreads(1), OMP/OPENBLAS/MKL threads 1), and survival ÷ LK's in the s
 run.  LK runs with OpenCV's defaults (21×21 window, 3 pyramid levels), started at the
 previous position; an LK track ends at its first status 0.  ``--quick`` skips the whole
 of slow.flv (656 frames); ``--why`` adds, per clip, the rejection that began the last
-miss of each differential track not measured in the last frame.
+miss of each differential track not measured in the last frame, and what became of the
+tracks that LK verifies and the differential matcher does not: ended in the forward run
+(by which rejection), left the image, ended in the backward run (by which rejection), or
+came back more than 1 px from their start (closure 1–2 px or more than 2 px).
 """
 
 from __future__ import annotations
@@ -84,8 +87,8 @@ def inside(positions: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         return (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
 
 
-def survival(frames: list[np.ndarray], points: np.ndarray, tracker: str) -> dict[str, float]:
-    """Alive at the end, forward–backward verified survival, median closure (px) and forward frames/s of one tracker."""
+def survival(frames: list[np.ndarray], points: np.ndarray, tracker: str) -> dict:
+    """Alive at the end, forward–backward verified survival, median closure (px), forward frames/s and which tracks are verified (P,) of one tracker."""
     run = run_lk if tracker == "LK" else (lambda f, p: run_kalman(f, p, tracker))
     end, measured, seconds = run(frames, points)
     alive = measured & inside(end, frames[0].shape)
@@ -101,16 +104,17 @@ def survival(frames: list[np.ndarray], points: np.ndarray, tracker: str) -> dict
         "survival": float(came_back.mean()),
         "closure": float(np.nanmedian(closure)) if np.isfinite(closure).any() else float("nan"),
         "fps": len(frames) / max(seconds, 1e-9),
+        "verified": came_back,
     }
 
 
-def why_ended(frames: list[np.ndarray], points: np.ndarray) -> str:
-    """Why the differential matcher's tracks are not measured in the last frame: the rejection that began their last miss.
+def _last_miss_reasons(frames: list[np.ndarray], points: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The differential matcher from ``points``, instrumented: (last positions, measured in the last frame, and per
+    track the rejection that began its last miss, "" where it is measured in the last frame).
 
-    The tracker is instrumented here (its steps are wrapped to read each frame's rejection
-    codes); the tracking itself is unchanged.
+    The tracker's steps are wrapped to read each frame's rejection codes; the tracking itself is unchanged.
     """
-    codes: dict[int, list[tuple[int, int]]] = {}
+    codes: dict[int, list[int]] = {}
     step, measure = tracker_module.Tracker._step_differential, tracker_module.Tracker._measure
 
     def recording_step(self, frame):
@@ -129,18 +133,66 @@ def why_ended(frames: list[np.ndarray], points: np.ndarray) -> str:
 
     tracker_module.Tracker._step_differential, tracker_module.Tracker._measure = recording_step, recording_measure
     try:
-        _, measured, _ = run_kalman(frames, points, "differential")
+        end, measured, _ = run_kalman(frames, points, "differential")
     finally:
         tracker_module.Tracker._step_differential, tracker_module.Tracker._measure = step, measure
-    first_miss: dict[str, int] = {}
-    for track_id in np.flatnonzero(~measured).tolist():
+    reasons = []
+    for track_id in range(len(points)):
+        if measured[track_id]:
+            reasons.append("")
+            continue
         history = codes.get(track_id, [])
         accepted = [k for k, code in enumerate(history) if code == 0]
         misses = history[accepted[-1] + 1:] if accepted else history
-        name = REJECTION_NAMES[misses[0]] if misses else "never measured"
-        first_miss[name] = first_miss.get(name, 0) + 1
-    listed = ", ".join(f"{name} {count}" for name, count in sorted(first_miss.items(), key=lambda item: -item[1]))
-    return f"differential: {int((~measured).sum())} tracks not measured in the last frame; the rejection that began their last miss: {listed}"
+        reasons.append(REJECTION_NAMES[misses[0]] if misses else "never measured")
+    return end, measured, reasons
+
+
+def _counted(names: list[str]) -> str:
+    counts: dict[str, int] = {}
+    for name in names:
+        counts[name] = counts.get(name, 0) + 1
+    return ", ".join(f"{name} {count}" for name, count in sorted(counts.items(), key=lambda item: (-item[1], item[0]))) or "none"
+
+
+def why_ended(frames: list[np.ndarray], points: np.ndarray, lk_verified: np.ndarray | None = None) -> str:
+    """Why the differential matcher's tracks are not measured in the last frame (the rejection that began their
+    last miss), and, given LK's verified tracks, why it does not verify tracks that LK verifies.
+
+    A track that LK verifies and the differential matcher does not is classed by what happened to it: ended in
+    the forward run (by the rejection that began its last miss), measured at the end but outside the image,
+    ended in the backward run (likewise), or back in the first frame but more than 1 px from its start
+    (closure 1–2 px or > 2 px).
+    """
+    end, measured, reasons = _last_miss_reasons(frames, points)
+    lines = [
+        f"differential: {int((~measured).sum())} tracks not measured in the last frame; the rejection that began their "
+        f"last miss: {_counted([r for r in reasons if r])}"
+    ]
+    if lk_verified is None:
+        return lines[0]
+    alive = measured & inside(end, frames[0].shape)
+    outcome = ["" for _ in range(len(points))]
+    for track_id in np.flatnonzero(measured & ~alive).tolist():
+        outcome[track_id] = "left the image"
+    for track_id in np.flatnonzero(~measured).tolist():
+        outcome[track_id] = f"ended forward ({reasons[track_id]})"
+    if alive.any():
+        rows = np.flatnonzero(alive)
+        back, back_measured, back_reasons = _last_miss_reasons(frames[::-1], end[alive])
+        distance = np.linalg.norm(back - points[alive], axis=1)
+        for j, track_id in enumerate(rows.tolist()):
+            if not back_measured[j]:
+                outcome[track_id] = f"ended backward ({back_reasons[j]})"
+            elif not distance[j] <= CLOSURE_PX:
+                outcome[track_id] = "closure 1-2 px" if distance[j] <= 2.0 else "closure > 2 px"
+    lost = np.flatnonzero(lk_verified & np.array([bool(o) for o in outcome])).tolist()
+    gained = int((~lk_verified & np.array([not o for o in outcome]) & alive).sum())
+    lines.append(
+        f"differential against LK: {len(lost)} tracks that LK verifies are not verified ({_counted([outcome[t] for t in lost])}); "
+        f"{gained} verified that LK does not verify"
+    )
+    return "\n".join(lines)
 
 
 def clip_table(label: str, frames: list[np.ndarray], n_points: int, why: bool = False) -> list[str]:
@@ -161,7 +213,7 @@ def clip_table(label: str, frames: list[np.ndarray], n_points: int, why: bool = 
             f"| {shown} | {100 * r['alive']:.1f} % | {100 * r['survival']:.1f} % | {r['closure']:.2f} | {r['fps']:.0f} | {ratio:.2f} |"
         )
     if why:
-        lines += ["", why_ended(frames, points)]
+        lines += ["", why_ended(frames, points, results["LK"]["verified"])]
     return lines
 
 
@@ -169,7 +221,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=200, help="corners detected in the first frame")
     parser.add_argument("--quick", action="store_true", help="skip the whole of slow.flv")
-    parser.add_argument("--why", action="store_true", help="per clip, why the differential matcher's tracks ended (rejection codes)")
+    parser.add_argument("--why", action="store_true", help="per clip, why the differential matcher's tracks ended (rejection codes), and why it misses tracks that LK verifies")
     args = parser.parse_args()
     clips = [
         ("cmu_hotel", DATA / "cmu_hotel" / "images", None),
