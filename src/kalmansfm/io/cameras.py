@@ -18,7 +18,8 @@ as it is.  Writers: :func:`cameras_csv` (projection-matrix layout) and
 :func:`pose_cameras_csv` (intrinsics + pose, optionally with the two standard deviations);
 numbers are the shortest text that reads back to the same float.
 
-Lines starting with ``#`` are comments; other columns are ignored.  Every problem
+Other columns are ignored; comments, blank lines and the rest of the rules every CSV reader
+shares are in docs/formats.md (:func:`._csv.read_rows`).  Every problem
 raises :class:`~kalmansfm.InvalidInputError` naming the file and the 1-based line:
 missing columns, a frame given twice, a non-number or non-finite entry, a matrix
 that is not a camera (singular left 3 × 3 block, fx or fy <= 0, R not a rotation).

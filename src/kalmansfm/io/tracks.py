@@ -10,8 +10,8 @@ the start-up match, with the filter's start-up prior as standard deviations),
 of the loss; the numbers are empty).  Other tools
 give less, and :func:`read_tracks` accepts any CSV with at least ``frame,track_id,x,y``:
 ``vx,vy`` (velocities), ``std_x,std_y`` (position standard deviations) and ``status``
-are optional, every row without a status is a measurement, and lines starting with
-``#`` are comments.
+are optional and every row without a status is a measurement.  Comments, blank lines, a
+byte-order mark and the other rules every CSV reader shares: docs/formats.md (:func:`._csv.read_rows`).
 
 ``tracks.npz`` holds ``positions (F,P,2)``, ``status (F,P)`` int8
 (:class:`~kalmansfm.tracking.tracks.TrackStatus` values), ``track_ids (P,)`` and
