@@ -105,7 +105,7 @@ def read_rows(path: str | os.PathLike[str], expected: str, *, allow_no_rows: boo
     kept = [(n, line) for n, line in enumerate(_NEWLINE.split(text), start=1)
             if line.strip() and not line.lstrip().startswith("#")]
     records: list[tuple[int, list[str]]] = []
-    reader = csv.reader(line for _, line in kept)
+    reader = csv.reader(line + "\n" for _, line in kept)
     start = 0
     try:
         for fields in reader:

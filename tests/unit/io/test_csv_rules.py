@@ -223,6 +223,8 @@ def test_read_rows_gives_file_lines_and_keeps_cells_as_written(tmp_path):
     header, header_line, rows = read_rows(f, "a,b")
     assert header == ["a", "b"] and header_line == 2
     assert rows == [(5, [" 1 ", "2,5"]), (7, ["3", "4"])]
+    f.write_text('a,b\n1,"two\nlines"\n2,3\n')
+    assert read_rows(f, "a,b").rows == [(2, ["1", "two\nlines"]), (4, ["2", "3"])]  # a row starts on its first line
 
 
 def test_points_outside_the_image_name_their_file_line(tmp_path):
