@@ -2,7 +2,9 @@
 
 Readers: ``read_points_csv``, ``read_tracks_csv``, ``read_tracks_npz`` (io/tracks.py),
 ``read_tracks`` (any format), ``read_ground_truth_tracks``
-and ``read_ground_truth`` (io/ground_truth.py).  Every other exception type is a bug.
+and ``read_ground_truth`` (io/ground_truth.py), ``read_cameras``, ``read_intrinsics``,
+``read_points_table``, ``read_motion_csv`` and the run folder's table reader (all on
+``io._csv.read_rows``; tests/unit/io/test_csv_rules.py checks the rules they share).  Every other exception type is a bug.
 Round trips check that what we write reads back unchanged.  The example counts are
 bounded so that the whole file runs in well under 20 s in CI.
 """
@@ -19,7 +21,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from kalmansfm.errors import InvalidInputError
+from kalmansfm.io.cameras import read_cameras
 from kalmansfm.io.ground_truth import read_ground_truth, read_ground_truth_tracks
+from kalmansfm.io.intrinsics import read_intrinsics
+from kalmansfm.io.run_folder import _read_csv_table
+from kalmansfm.io.structure import read_motion_csv, read_points_table
 from kalmansfm.io.tracks import (
     read_points_csv,
     read_tracks,
@@ -35,7 +41,7 @@ WORK = Path(tempfile.mkdtemp(prefix="kalmansfm-fuzz-"))
 
 # Tokens that make a CSV almost right: the header words of every format, numbers good and bad.
 WORDS = ["frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y", "status", "visible", "X", "Y", "Z",
-         "measured", "predicted", "lost", "1", "0", "-1", "2.5", "1e308", "1e400", "nan", "inf", "-inf", "",
+         "measured", "predicted", "lost", "p11", "fx", "i_x", "ok", "1", "0", "-1", "2.5", "1e308", "1e400", "nan", "inf", "-inf", "",
          " ", "abc", "#", '"', "\x00", "é", "1.0.0", "0x10", "99999999999999999999"]
 SEPARATORS = [",", ",", ",", "\n", "\n", "\r\n", ";", "\t"]
 csv_text = st.lists(st.one_of(st.sampled_from(WORDS), st.sampled_from(SEPARATORS)), max_size=60).map("".join)
@@ -46,6 +52,11 @@ TEXT_READERS = {
     "tracks_csv": read_tracks_csv,
     "tracks_any_csv": read_tracks,
     "ground_truth_tracks": read_ground_truth_tracks,
+    "cameras": read_cameras,
+    "intrinsics": lambda path: read_intrinsics(path, [0, 1, 2]),
+    "structure": read_points_table,
+    "motion": read_motion_csv,
+    "run_table": _read_csv_table,
 }
 
 
@@ -153,7 +164,7 @@ def random_tracks(draw) -> Tracks:
 def test_tracks_csv_round_trip(tracks):
     path = _file("round.csv", tracks_to_csv(tracks).encode())
     if not (tracks.status != 0).any():
-        with pytest.raises(InvalidInputError, match="no data rows"):
+        with pytest.raises(InvalidInputError, match="no rows after the header"):
             read_tracks_csv(path)
         return
     back = read_tracks_csv(path)
@@ -218,7 +229,7 @@ def test_track_table_csv_round_trip(seed, frames, count, holes):
             for f in range(frames) for p in range(count) if np.isfinite(positions[f, p, 0])]
     path = _file("table.csv", ("frame,track_id,x,y\n" + "\n".join(rows) + "\n").encode())
     if not rows:
-        with pytest.raises(InvalidInputError, match="no data rows"):
+        with pytest.raises(InvalidInputError, match="no rows after the header"):
             read_tracks(path)
         return
     table = read_tracks(path)

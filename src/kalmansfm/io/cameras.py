@@ -18,7 +18,8 @@ as it is.  Writers: :func:`cameras_csv` (projection-matrix layout) and
 :func:`pose_cameras_csv` (intrinsics + pose, optionally with the two standard deviations);
 numbers are the shortest text that reads back to the same float.
 
-Lines starting with ``#`` are comments; other columns are ignored.  Every problem
+Other columns are ignored; comments, blank lines and the rest of the rules every CSV reader
+shares are in docs/formats.md (:func:`._csv.read_rows`).  Every problem
 raises :class:`~kalmansfm.InvalidInputError` naming the file and the 1-based line:
 missing columns, a frame given twice, a non-number or non-finite entry, a matrix
 that is not a camera (singular left 3 × 3 block, fx or fy <= 0, R not a rotation).
@@ -26,7 +27,6 @@ that is not a camera (singular left 3 × 3 block, fx or fy <= 0, R not a rotatio
 
 from __future__ import annotations
 
-import csv
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..structure.pinhole import CameraSet, intrinsic_matrices
-from ._csv import csv_text, number
+from ._csv import csv_text, number, read_rows
 from .tracks import _floats, _indices
 
 __all__ = [
@@ -62,28 +62,6 @@ _SINGULAR_RATIO = 1e-12
 _ROTATION_TOLERANCE = 1e-6
 
 
-def _rows(file: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
-    try:
-        with open(file, newline="", encoding="utf-8-sig") as handle:
-            numbered = [(n, row) for n, row in enumerate(csv.reader(handle), start=1)
-                        if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")]
-    except FileNotFoundError:
-        raise InvalidInputError(f"{file}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InvalidInputError(f"{file}: not a readable text CSV ({exc})") from None
-    if not numbered:
-        raise InvalidInputError(f"{file}: empty file; expected a header {','.join(MATRIX_COLUMNS)} "
-                                f"or {','.join(POSE_COLUMNS)}")
-    header_line, header = numbered[0]
-    header = [h.strip() for h in header]
-    for n, row in numbered[1:]:
-        if len(row) != len(header):
-            raise InvalidInputError(f"{file}: line {n}: {len(row)} fields, the header has {len(header)}")
-    if len(numbered) == 1:
-        raise InvalidInputError(f"{file}: no camera rows after the header (line {header_line})")
-    return header, numbered[1:]
-
-
 def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
     """Read a cameras CSV (either layout, see the module notes).
 
@@ -103,7 +81,7 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
     ([4], [500.0, 0.0, 320.0, 1600.0])
     """
     file = Path(path)
-    header, rows = _rows(file)
+    header, _, rows = read_rows(file, f"{','.join(MATRIX_COLUMNS)} or {','.join(POSE_COLUMNS)}")
     column = {name: i for i, name in enumerate(header)}
     if all(c in column for c in MATRIX_COLUMNS):
         layout = MATRIX_COLUMNS

@@ -21,7 +21,6 @@ A folder with ground truth holds
 
 from __future__ import annotations
 
-import csv
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ._csv import csv_text, number
+from ._csv import csv_text, number, read_rows
 from .structure import structure_csv
 from .tracks import MAX_INDEX
 
@@ -129,35 +128,19 @@ def ground_truth_files(truth: GroundTruth) -> dict[str, str]:
     return files
 
 
-def _read_table(path: Path, required: list[str]) -> dict[str, np.ndarray]:
-    """Columns of a CSV file with a header, as float arrays; checks the required columns."""
-    if not path.is_file():
-        raise InvalidInputError(f"{path}: no such file")
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            reader = csv.reader(handle)
-            header = next(reader, None)
-            if header is None:
-                raise InvalidInputError(f"{path}: empty file; expected a header with {', '.join(required)}")
-            header = [h.strip() for h in header]
-            missing = [c for c in required if c not in header]
-            if missing:
-                raise InvalidInputError(f"{path}: missing column(s) {', '.join(missing)}; header is {','.join(header)}")
-            rows = []
-            for line_number, row in enumerate(reader, start=2):
-                if not row:
-                    continue
-                if len(row) != len(header):
-                    raise InvalidInputError(f"{path}, row {line_number}: expected {len(header)} fields, got {len(row)}")
-                try:
-                    rows.append([float(v) if v.strip() else np.nan for v in row])
-                except ValueError:
-                    raise InvalidInputError(f"{path}, row {line_number}: expected numbers, got {','.join(row)}") from None
-    except UnicodeDecodeError:
-        raise InvalidInputError(f"{path}: not a UTF-8 text CSV file") from None
-    except csv.Error as exc:
-        raise InvalidInputError(f"{path}: not a readable CSV file ({exc})") from None
-    table = np.array(rows, dtype=np.float64).reshape(len(rows), len(header))
+def _read_table(path: Path, required: list[str], *, allow_no_rows: bool = False) -> dict[str, np.ndarray]:
+    """Columns of a CSV file with a header, as float arrays (an empty cell is NaN); checks the required columns."""
+    header, _, rows = read_rows(path, f"with {', '.join(required)}", allow_no_rows=allow_no_rows)
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InvalidInputError(f"{path}: missing column(s) {', '.join(missing)}; header is {','.join(header)}")
+    values = []
+    for line_number, row in rows:
+        try:
+            values.append([float(v) if v.strip() else np.nan for v in row])
+        except ValueError:
+            raise InvalidInputError(f"{path}, row {line_number}: expected numbers, got {','.join(row)}") from None
+    table = np.array(values, dtype=np.float64).reshape(len(values), len(header))
     return {name: table[:, k] for k, name in enumerate(header)}
 
 
@@ -178,8 +161,6 @@ def read_ground_truth_tracks(path: str | os.PathLike[str]) -> GroundTruth:
     table = _read_table(path, ["frame", "track_id", "x", "y", "visible"])
     frames = _as_index(table["frame"], path, "frame")
     ids = _as_index(table["track_id"], path, "track_id")
-    if len(frames) == 0:
-        raise InvalidInputError(f"{path}: no rows")
     track_ids, column = np.unique(ids, return_inverse=True)
     positions = np.full((frames.max() + 1, len(track_ids), 2), np.nan)
     visible = np.zeros((frames.max() + 1, len(track_ids)), dtype=bool)
@@ -200,7 +181,7 @@ def read_ground_truth(directory: str | os.PathLike[str]) -> GroundTruth:
     points_3d = rotation_rows = translations = scales = None
     points_path = folder / POINTS_FILE
     if points_path.is_file():
-        table = _read_table(points_path, ["track_id", "X", "Y", "Z"])
+        table = _read_table(points_path, ["track_id", "X", "Y", "Z"], allow_no_rows=True)
         ids = _as_index(table["track_id"], points_path, "track_id")
         points_3d = np.full((len(tracks.track_ids), 3), np.nan)
         where = np.searchsorted(tracks.track_ids, ids)
@@ -210,7 +191,7 @@ def read_ground_truth(directory: str | os.PathLike[str]) -> GroundTruth:
         points_3d[where] = np.column_stack([table["X"], table["Y"], table["Z"]])
     motion_path = folder / MOTION_FILE
     if motion_path.is_file():
-        table = _read_table(motion_path, MOTION_COLUMNS)
+        table = _read_table(motion_path, MOTION_COLUMNS, allow_no_rows=True)
         frames = _as_index(table["frame"], motion_path, "frame")
         n_frames = tracks.positions.shape[0]
         if len(frames) != n_frames or not np.array_equal(np.sort(frames), np.arange(n_frames)):

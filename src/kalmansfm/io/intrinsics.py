@@ -17,8 +17,8 @@ import numpy as np
 from .._validation import check_positive
 from ..errors import InvalidInputError
 from ..structure.pinhole import intrinsic_matrices
-from ._csv import number
-from .tracks import _floats, _indices, _read_csv_rows
+from ._csv import number, read_rows
+from .tracks import _floats, _indices
 
 __all__ = ["INTRINSICS_COLUMNS", "intrinsics_csv", "intrinsics_from_focal", "read_intrinsics"]
 
@@ -52,11 +52,13 @@ def read_intrinsics(path: str | os.PathLike[str], frames: object) -> np.ndarray:
     kalmansfm.errors.InvalidInputError: ... no intrinsics for frame 2 (K.csv has frames 0-1; give one row for all frames or one per frame)
     """
     file = Path(path)
-    rows = _read_csv_rows(file, INTRINSICS_COLUMNS)
-    if not rows:
-        raise InvalidInputError(f"{file}: no intrinsics rows after the header {','.join(INTRINSICS_COLUMNS)}")
+    header, header_line, rows = read_rows(file, ",".join(INTRINSICS_COLUMNS))
+    missing = [c for c in INTRINSICS_COLUMNS if c not in header]
+    if missing:
+        raise InvalidInputError(f"{file} row {header_line} (header): missing column(s) {', '.join(missing)}; got {header}")
     lines = np.array([n for n, _ in rows])
-    column = {c: np.array([r[c] for _, r in rows], dtype=object) for c in INTRINSICS_COLUMNS}
+    index = {name: i for i, name in enumerate(header)}
+    column = {c: np.array([r[index[c]] for _, r in rows], dtype=object) for c in INTRINSICS_COLUMNS}
     fx, fy, cx, cy, skew = (_floats(file, column[c], lines, c) for c in INTRINSICS_COLUMNS[1:])
     bad = ~((fx > 0) & (fy > 0))
     if bad.any():

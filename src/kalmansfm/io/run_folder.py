@@ -10,7 +10,6 @@ cannot be used; a file the run did not write is simply ``None``.
 
 from __future__ import annotations
 
-import csv
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..structure.pinhole import CameraSet
 from ..tracking.tracks import Tracks
+from ._csv import read_rows
 from .cameras import read_cameras
 from .frames import quiet_decoders
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
@@ -87,14 +87,8 @@ class RunFolder:
 
 
 def _read_csv_table(path: Path) -> CsvTable:
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = [row for row in csv.reader(handle) if row and not row[0].startswith("#")]
-    except UnicodeDecodeError:
-        raise InvalidInputError(f"{path}: is not UTF-8 text") from None
-    if not rows:
-        raise InvalidInputError(f"{path}: is empty; expected a header row and data rows")
-    return CsvTable(path.stem, rows[0], rows[1:])
+    header, _, rows = read_rows(path, "row (the table's column names)", allow_no_rows=True)
+    return CsvTable(path.stem, header, [fields for _, fields in rows])
 
 
 def load_run(run_dir: str | Path) -> RunFolder:

@@ -23,7 +23,6 @@ per-vertex properties given (the commands add ``uncertainty``, √(tr Σ / 3)).
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +31,7 @@ import numpy as np
 from .._validation import LabelledEnum
 from ..errors import InvalidInputError
 from ..structure.points import PointStatus
-from ._csv import csv_text, number
+from ._csv import csv_text, number, read_rows
 
 MOTION_COLUMNS = ("frame", "i_x", "i_y", "i_z", "j_x", "j_y", "j_z", "t_x", "t_y")
 #: The plain layout: a point per track (ground truth, other tools).
@@ -248,35 +247,27 @@ def _read_columns(
     hold a label of the status enum given (read as its code).
     """
     words = words or {}
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            reader = csv.DictReader(handle)
-            header = reader.fieldnames or []
-            missing = [c for c in columns if c not in header]
-            if missing:
-                raise InvalidInputError(
-                    f"{path}: missing column(s) {', '.join(missing)}; expected {','.join(columns)}, "
-                    f"got header {','.join(header) or '(empty file)'}"
-                )
-            wanted = [*columns, *(c for c in optional if c in header)]
-            values: dict[str, list[float]] = {c: [] for c in wanted}
-            for row in reader:
-                for c in wanted:
-                    cell = row[c]
-                    try:
-                        if c in words:
-                            values[c].append(words[c].from_label(cell).value)  # type: ignore[arg-type]
-                        else:
-                            values[c].append(np.nan if cell == "" else float(cell))  # type: ignore[arg-type]
-                    except (TypeError, ValueError, KeyError, AttributeError):
-                        expected = "one of " + ", ".join(s.label for s in words[c]) if c in words else "a number"
-                        raise InvalidInputError(
-                            f"{path}, line {reader.line_num}: column {c!r} must be {expected}; got {cell!r}"
-                        ) from None
-    except UnicodeDecodeError:
-        raise InvalidInputError(f"{path}: is not UTF-8 text") from None
-    except csv.Error as exc:
-        raise InvalidInputError(f"{path}: not a readable CSV file ({exc})") from None
+    header, _, rows = read_rows(path, f"with columns {','.join(columns)}", allow_no_rows=True)
+    missing = [c for c in columns if c not in header]
+    if missing:
+        raise InvalidInputError(
+            f"{path}: missing column(s) {', '.join(missing)}; expected {','.join(columns)}, "
+            f"got header {','.join(header)}"
+        )
+    index = {name: i for i, name in enumerate(header)}
+    wanted = [*columns, *(c for c in optional if c in index)]
+    values: dict[str, list[float]] = {c: [] for c in wanted}
+    for line, fields in rows:
+        for c in wanted:
+            cell = fields[index[c]]
+            try:
+                if c in words:
+                    values[c].append(words[c].from_label(cell).value)  # type: ignore[arg-type]
+                else:
+                    values[c].append(np.nan if cell == "" else float(cell))
+            except (TypeError, ValueError, KeyError, AttributeError):
+                expected = "one of " + ", ".join(s.label for s in words[c]) if c in words else "a number"
+                raise InvalidInputError(f"{path}, line {line}: column {c!r} must be {expected}; got {cell!r}") from None
     return {c: np.asarray(v, dtype=float) for c, v in values.items()}
 
 

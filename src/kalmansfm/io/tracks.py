@@ -10,8 +10,8 @@ the start-up match, with the filter's start-up prior as standard deviations),
 of the loss; the numbers are empty).  Other tools
 give less, and :func:`read_tracks` accepts any CSV with at least ``frame,track_id,x,y``:
 ``vx,vy`` (velocities), ``std_x,std_y`` (position standard deviations) and ``status``
-are optional, every row without a status is a measurement, and lines starting with
-``#`` are comments.
+are optional and every row without a status is a measurement.  Comments, blank lines, a
+byte-order mark and the other rules every CSV reader shares: docs/formats.md (:func:`._csv.read_rows`).
 
 ``tracks.npz`` holds ``positions (F,P,2)``, ``status (F,P)`` int8
 (:class:`~kalmansfm.tracking.tracks.TrackStatus` values), ``track_ids (P,)`` and
@@ -28,7 +28,6 @@ naming the file and the line (CSV) or the array entry (NPZ).
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 import os
@@ -39,7 +38,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..tracking.settings import TrackerSettings
 from ..tracking.tracks import LOST, MEASUREMENT_CODES, NO_TRACK, POSITION_CODES, Tracks, TrackStatus
-from ._csv import csv_text, number
+from ._csv import csv_text, number, read_rows
 from .npz import load_npz
 from .records import from_json, to_json
 
@@ -205,29 +204,11 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
     Without a ``std_x,std_y`` pair the tracks have no covariances; without ``vx,vy`` no states.
     """
     file = Path(path)
-    try:
-        with open(file, newline="", encoding="utf-8-sig") as handle:
-            numbered = [(n, row) for n, row in enumerate(csv.reader(handle), start=1) if row and not row[0].lstrip().startswith("#")]
-    except FileNotFoundError:
-        raise InvalidInputError(f"{file}: no such file") from None
-    except UnicodeDecodeError:
-        raise InvalidInputError(f"{file}: not a text CSV file") from None
-    except (OSError, csv.Error) as exc:
-        raise InvalidInputError(f"{file}: not a readable CSV file ({exc})") from None
-    if not numbered:
-        raise InvalidInputError(f"{file}: empty file; expected a header with columns {','.join(_REQUIRED)}")
-    header_line, header = numbered[0]
-    header = [h.strip() for h in header]
+    header, header_line, rows = read_rows(file, f"with columns {','.join(_REQUIRED)}")
     missing = [c for c in _REQUIRED if c not in header]
     if missing:
         raise InvalidInputError(f"{file}: line {header_line}: header lacks column(s) {', '.join(missing)}; got {','.join(header)}")
-    rows = numbered[1:]
-    if not rows:
-        raise InvalidInputError(f"{file}: no data rows after the header")
     column = {name: i for i, name in enumerate(header)}
-    for n, row in rows:
-        if len(row) != len(header):
-            raise InvalidInputError(f"{file}: line {n}: {len(row)} fields, header has {len(header)}")
     lines = np.array([n for n, _ in rows])
     table = np.array([row for _, row in rows], dtype=object)
 
@@ -420,45 +401,20 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
 # --- start points ------------------------------------------------------------------------------
 
 
-def _read_csv_rows(path: Path, required: tuple[str, ...]) -> list[tuple[int, dict[str, str]]]:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InvalidInputError(f"{path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InvalidInputError(f"{path} is not a readable text CSV ({exc})") from None
-    reader = csv.DictReader(io.StringIO(text))
-    try:
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        reader.fieldnames = header
-        missing = [c for c in required if c not in header]
-        if missing:
-            raise InvalidInputError(f"{path} row 1 (header): missing column(s) {', '.join(missing)}; got {header}")
-        rows = []
-        for row in reader:
-            line = reader.line_num
-            if None in row or any(v is None for v in row.values()):
-                raise InvalidInputError(f"{path} row {line}: expected {len(header)} fields like the header")
-            if not any(v.strip() for v in row.values()):
-                continue
-            rows.append((line, row))
-    except csv.Error as exc:
-        raise InvalidInputError(f"{path} is not a readable CSV ({exc})") from None
-    return rows
-
-
-def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray | None]:
+def read_points_csv(path: str | os.PathLike[str], *, with_lines: bool = False) -> tuple:
     """Points to track from a CSV with a header holding ``x``, ``y`` and optionally ``track_id``.
 
     Returns
     -------
     points : (P, 2) float64 (x, y).
     track_ids : (P,) int64, or None when the file has no ``track_id`` column.
+    lines : (P,) int64, only ``with_lines``: the file's 1-based line of each point
+        (for :func:`check_points_inside`).
 
     Raises
     ------
     InvalidInputError
-        Naming the file and the row (1-based line number, header = 1) of the problem.
+        Naming the file and the row (its 1-based line in the file) of the problem.
 
     Examples
     --------
@@ -470,41 +426,54 @@ def read_points_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarra
            [117.,  89.]]), array([7, 8]))
     """
     path = Path(path)
-    rows = _read_csv_rows(path, required=("x", "y"))
-    if not rows:
-        raise InvalidInputError(f"{path}: no points after the header")
-    has_ids = "track_id" in (rows[0][1].keys())
+    header, header_line, rows = read_rows(path, "with columns x,y (and optionally track_id)")
+    missing = [c for c in ("x", "y") if c not in header]
+    if missing:
+        raise InvalidInputError(f"{path} row {header_line} (header): missing column(s) {', '.join(missing)}; got {header}")
+    column = {name: i for i, name in enumerate(header)}
+    has_ids = "track_id" in column
     points = np.empty((len(rows), 2))
     ids = np.empty(len(rows), np.int64)
+    lines = np.array([line for line, _ in rows], dtype=np.int64)
     seen: dict[int, int] = {}
-    for k, (line, row) in enumerate(rows):
+    for k, (line, fields) in enumerate(rows):
+        x, y = fields[column["x"]], fields[column["y"]]
         try:
-            points[k] = float(row["x"]), float(row["y"])
+            points[k] = float(x), float(y)
         except ValueError:
-            raise InvalidInputError(f"{path} row {line}: x and y must be numbers; got x={row['x']!r}, y={row['y']!r}") from None
+            raise InvalidInputError(f"{path} row {line}: x and y must be numbers; got x={x!r}, y={y!r}") from None
         if not np.isfinite(points[k]).all():
-            raise InvalidInputError(f"{path} row {line}: x and y must be finite; got {row['x']}, {row['y']}")
+            raise InvalidInputError(f"{path} row {line}: x and y must be finite; got {x}, {y}")
         if has_ids:
+            text = fields[column["track_id"]]
             try:
-                number = float(row["track_id"])
+                number = float(text)
             except ValueError:
                 number = np.nan
             if not (np.isfinite(number) and number == int(number) and 0 <= number <= MAX_INDEX):
                 raise InvalidInputError(
-                    f"{path} row {line}: track_id must be an integer in 0 … {MAX_INDEX}; got {row['track_id']!r}"
+                    f"{path} row {line}: track_id must be an integer in 0 … {MAX_INDEX}; got {text!r}"
                 )
             ids[k] = int(number)
             if int(ids[k]) in seen:
                 raise InvalidInputError(f"{path} row {line}: track_id {ids[k]} repeats row {seen[int(ids[k])]}")
             seen[int(ids[k])] = line
+    if with_lines:
+        return points, (ids if has_ids else None), lines
     return points, (ids if has_ids else None)
 
 
-def check_points_inside(points: np.ndarray, width: int, height: int, source: str) -> None:
-    """Raise naming the CSV row (header = row 1) of the first point outside a ``width``×``height`` image."""
+def check_points_inside(points: np.ndarray, width: int, height: int, source: str,
+                        lines: np.ndarray | None = None) -> None:
+    """Raise naming the CSV row of the first point outside a ``width``×``height`` image.
+
+    ``lines`` are the file's 1-based line of each point (``read_points_csv(..., with_lines=True)``);
+    without them the points are taken to follow the header on lines 2, 3, ….
+    """
     outside = (points[:, 0] < 0) | (points[:, 0] > width - 1) | (points[:, 1] < 0) | (points[:, 1] > height - 1)
     if outside.any():
         k = int(np.flatnonzero(outside)[0])
+        line = int(lines[k]) if lines is not None else k + 2
         raise InvalidInputError(
-            f"{source} row {k + 2}: point ({points[k, 0]:g}, {points[k, 1]:g}) lies outside the {width}×{height} image"
+            f"{source} row {line}: point ({points[k, 0]:g}, {points[k, 1]:g}) lies outside the {width}×{height} image"
         )

@@ -63,15 +63,15 @@ def run_track(
     check_output_directory(out_dir, inputs=[input, points])
     clock = Stopwatch()
     sequence = read_frames(input)
-    start = track_ids = None
+    start = track_ids = lines = None
     if points is not None:
-        start, track_ids = read_points_csv(points)
+        start, track_ids, lines = read_points_csv(points, with_lines=True)
     source = run_source(input, [*sequence.paths, *([points] if points is not None else [])],
                         {"settings": settings or TrackerSettings(), "smooth": smooth})
     with clock.step("tracking"):  # decoding included, as when the tracker read the frames lazily
         frames = list(sequence)  # decoded once: tracked, then drawn (tracks.png, tracks.gif)
         if points is not None:
-            check_points_inside(start, frames[0].shape[1], frames[0].shape[0], str(points))
+            check_points_inside(start, frames[0].shape[1], frames[0].shape[0], str(points), lines)
         tracks = track(frames, start, track_ids=track_ids, settings=settings, progress=progress)
     if smooth is not False:
         with clock.step("smoothing"):
