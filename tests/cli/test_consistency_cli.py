@@ -124,3 +124,13 @@ def test_pixel_std_is_the_spelling_of_every_command_and_pixel_noise_still_works(
     text = sub.format_help()
     assert "--pixel-std PX" in text and "--pixel-noise" not in text
     assert "--pixel-std" in parser._subparsers._group_actions[0].choices["fuse"].format_help()
+
+
+def test_consistency_csv_reads_back_to_the_study_exactly(main, capsys):
+    from kalmansfm.experiments.consistency import run_consistency
+
+    assert main(["consistency", "--task", "2", "--runs", "20", "--format", "csv", "--quiet"]) == 0
+    rows = [line.split(",") for line in capsys.readouterr().out.strip().splitlines()[1:]]
+    study = run_consistency(2, runs=20)
+    assert [float(r[2]) for r in rows] == study.mean_nees.tolist()  # full precision, not 6 digits
+    assert [float(r[6]) for r in rows] == study.within_1sigma[:, 0].tolist()

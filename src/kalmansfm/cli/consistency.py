@@ -5,18 +5,15 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
 from tqdm import tqdm
 
 from ..errors import InvalidInputError
-from ..experiments.consistency import SPACES, ConsistencyResult, run_consistency
+from ..experiments.consistency import SPACES, run_consistency
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
+from ..report.consistency import consistency_csv, consistency_text
 from ..structure.landmark import TASK7_DEFAULT_METHOD
 from ..structure.point_fusion import FUSION_METHODS
 from ._options import add_hidden_alias, as_typed
-
-_AXES = {1: ["distance"], 3: ["x", "y", "z"]}
-_STATE_AXES = ["x/z", "y/z", "1/z"]
 
 
 class _StoreMethod(argparse.Action):
@@ -56,49 +53,6 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.set_defaults(run=run, method_given=False)
 
 
-def _axes(r: ConsistencyResult) -> list[str]:
-    if r.parameters.get("space") == "inverse_depth":
-        return _STATE_AXES
-    return _AXES.get(r.dimension, [str(i + 1) for i in range(r.dimension)])
-
-
-def format_text(r: ConsistencyResult) -> str:
-    """A short human-readable summary."""
-    axes = _axes(r)
-    params = ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in r.parameters.items())
-    lines = [
-        f"Task {r.task}, method {r.method}: {r.runs} runs, {r.iterations} iterations, d = {r.dimension} ({params})",
-        "axis        within 1σ  within 3σ   (consistent: 0.683, 0.997)",
-    ]
-    for i, name in enumerate(axes):
-        lines.append(f"{name:<10}  {r.pooled_within_1sigma[i]:9.3f}  {r.pooled_within_3sigma[i]:9.3f}")
-    lines += [
-        f"mean NEES, final iteration: {r.final_mean_nees:.3f}  95% interval [{r.nees_low[-1]:.3f}, "
-        f"{r.nees_high[-1]:.3f}]  (expected {r.dimension})",
-        f"mean NEES, all iterations:  {r.pooled_mean_nees:.3f}",
-        f"iterations inside the interval: {int(r.inside.sum())}/{r.iterations}; consistent from iteration "
-        f"{r.consistent_from if r.consistent_from is not None else '-'}",
-        f"runs with an estimate: min {int(r.valid_runs.min())}/{r.runs} per iteration",
-        f"{'PASS' if r.passed else 'FAIL'}: {r.verdict}",
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def format_csv(r: ConsistencyResult) -> str:
-    """One row per iteration: NEES, its interval and the per-axis 1σ/3σ fractions."""
-    axes = [a.replace("/", "_over_") for a in _axes(r)]
-    header = ["iter", "valid_runs", "mean_nees", "nees_low", "nees_high", "inside"]
-    header += [f"within1_{a}" for a in axes] + [f"within3_{a}" for a in axes]
-    rows = [",".join(header)]
-    for k in range(r.iterations):
-        values = [str(k + 1), str(int(r.valid_runs[k]))]
-        values += [f"{v:.6g}" for v in (r.mean_nees[k], r.nees_low[k], r.nees_high[k])]
-        values.append(str(int(r.inside[k])))
-        values += [f"{v:.4f}" for v in np.concatenate([r.within_1sigma[k], r.within_3sigma[k]])]
-        rows.append(",".join(values))
-    return "\n".join(rows) + "\n"
-
-
 def run(args: argparse.Namespace) -> int:
     if args.task == 2 and args.method_given:
         raise InvalidInputError("--method applies to --task 7 only (task 2 is plain Kalman fusion)")
@@ -122,5 +76,5 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for bar in bars:
             bar.close()
-    sys.stdout.write(format_text(result) if args.format == "text" else format_csv(result))
+    sys.stdout.write(consistency_text(result) if args.format == "text" else consistency_csv(result))
     return 0
