@@ -74,9 +74,9 @@ def test_unknown_matcher_is_a_usage_error(scene_folder, tmp_path, capsys):
 @pytest.mark.parametrize(
     "content, message",
     [
-        ("x,y\n10,10\n12,abc\n", "points.csv row 3"),
-        ("a,b\n1,2\n", "missing column"),
-        ("x,y\n10,10\n500,10\n", "points.csv row 3: point (500, 10) lies outside"),
+        ("x,y\n10,10\n12,abc\n", "points.csv: line 3: x and y must be numbers"),
+        ("a,b\n1,2\n", "points.csv: line 1: missing column(s) x, y"),
+        ("x,y\n10,10\n500,10\n", "points.csv: line 3: point (500, 10) lies outside"),
     ],
 )
 def test_bad_points_file_exit_2_and_nothing_left(scene_folder, tmp_path, capsys, content, message):

@@ -82,7 +82,7 @@ def _in_truth_folder(name: str) -> Callable[[Path], object]:
 class Case:
     text: str  # the valid file
     read: Callable[[Path], object]
-    header_only: str | None = re.escape(": no rows after the header (line 2)")  # its error; None: it reads
+    header_only: str | None = re.escape(": line 2: no rows after the header")  # its error; None: it reads
     optional: bool = False  # the file may be absent (its reader then gives no error)
 
 
@@ -234,5 +234,5 @@ def test_points_outside_the_image_name_their_file_line(tmp_path):
     f.write_text("# start points\nx,y\n\n10,10\n500,20\n")
     points, ids, lines = read_points_csv(f, with_lines=True)
     assert ids is None and lines.tolist() == [4, 5]
-    with pytest.raises(InvalidInputError, match="points.csv row 5: point \\(500, 20\\) lies outside"):
+    with pytest.raises(InvalidInputError, match="points.csv: line 5: point \\(500, 20\\) lies outside"):
         check_points_inside(points, 160, 120, str(f), lines)
