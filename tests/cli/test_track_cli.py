@@ -104,7 +104,7 @@ def test_bad_input_exit_2_and_existing_folder_left_as_it_was(tmp_path, capsys):
     for k, size in enumerate([(40, 30), (40, 30), (41, 30)]):
         cv2.imwrite(str(frames / f"{k}.png"), np.zeros(size[::-1], np.uint8))
     assert cli.main(["track", str(frames), "--out", str(out), "--quiet"]) == 2
-    assert "2.png is 41×30" in capsys.readouterr().err
+    assert "2.png: 41×30, but 0.png is 40×30" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt", "summary.json"]
 
 

@@ -113,7 +113,7 @@ def test_frames_without_tracks_show_the_raw_strip(tmp_path):
     "content, expected",
     [
         (None, r"summary\.json: not found"),
-        ("{not json", r"summary\.json: is not valid JSON \(line 1"),
+        ("{not json", r"summary\.json: line 1: not valid JSON \(column "),
         ("[1, 2]", r"summary\.json: expected a JSON object"),
         ('{"command": "demo"}', r"summary\.json: schema_version None is not 3"),
         (_SUMMARY[:-1] + ', "tracking": [1]}', r"summary\.json\.tracking: expected an object"),
