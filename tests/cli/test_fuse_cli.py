@@ -109,7 +109,7 @@ def bad_cameras(tmp_path, text):
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda f: bad_cameras(f, "frame,p11,p12\n10,1,2\n"), r"cameras.csv: header lacks column\(s\) p13"),
+        (lambda f: bad_cameras(f, "frame,p11,p12\n10,1,2\n"), r"cameras.csv: line 1: header lacks column\(s\) p13"),
         (lambda f: bad_cameras(f, ",".join(MATRIX_COLUMNS) + "\n10" + ",0" * 12 + "\n11,1,0,0,0,0,1,0,0,0,0,1,0\n"),
          "cameras.csv: line 2: frame 10: not a camera"),
         (lambda f: bad_cameras(f, ",".join(MATRIX_COLUMNS) + "\n10,1,0,0,0,0,1,0,0,0,0,inf,0\n"),

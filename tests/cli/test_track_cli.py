@@ -74,9 +74,9 @@ def test_unknown_matcher_is_a_usage_error(scene_folder, tmp_path, capsys):
 @pytest.mark.parametrize(
     "content, message",
     [
-        ("x,y\n10,10\n12,abc\n", "points.csv row 3"),
-        ("a,b\n1,2\n", "missing column"),
-        ("x,y\n10,10\n500,10\n", "points.csv row 3: point (500, 10) lies outside"),
+        ("x,y\n10,10\n12,abc\n", "points.csv: line 3: x and y must be numbers"),
+        ("a,b\n1,2\n", "points.csv: line 1: missing column(s) x, y"),
+        ("x,y\n10,10\n500,10\n", "points.csv: line 3: point (500, 10) lies outside"),
     ],
 )
 def test_bad_points_file_exit_2_and_nothing_left(scene_folder, tmp_path, capsys, content, message):
@@ -104,7 +104,7 @@ def test_bad_input_exit_2_and_existing_folder_left_as_it_was(tmp_path, capsys):
     for k, size in enumerate([(40, 30), (40, 30), (41, 30)]):
         cv2.imwrite(str(frames / f"{k}.png"), np.zeros(size[::-1], np.uint8))
     assert cli.main(["track", str(frames), "--out", str(out), "--quiet"]) == 2
-    assert "2.png is 41×30" in capsys.readouterr().err
+    assert "2.png: 41×30, but 0.png is 40×30" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt", "summary.json"]
 
 

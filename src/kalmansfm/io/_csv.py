@@ -40,6 +40,26 @@ def csv_text(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
 
 # --- reading ------------------------------------------------------------------------------------
 
+
+def where(path: str | os.PathLike[str], *lines: int) -> str:
+    """Where a problem in an input file is, the prefix of every message that names one.
+
+    ``FILE`` for the whole file, ``FILE: line N`` for one line (the file's own 1-based line, as
+    :func:`read_rows` gives it, the header included), ``FILE: lines N and M`` for two. The message
+    follows after ``": "``.
+
+    Examples
+    --------
+    >>> where("a/points.csv"), where("points.csv", 4), where("K.csv", 2, 5)
+    ('a/points.csv', 'points.csv: line 4', 'K.csv: lines 2 and 5')
+    """
+    text = os.fspath(path)
+    if not lines:
+        return text
+    if len(lines) == 1:
+        return f"{text}: line {int(lines[0])}"
+    return f"{text}: lines {', '.join(str(int(n)) for n in lines[:-1])} and {int(lines[-1])}"
+
 _NEWLINE = re.compile(r"\r\n|\r|\n")
 
 
@@ -76,9 +96,10 @@ def read_rows(path: str | os.PathLike[str], expected: str, *, allow_no_rows: boo
     Raises
     ------
     InvalidInputError
-        Naming the file, and the 1-based line where there is one: ``FILE: no such file``,
+        Naming the file, and the 1-based line where there is one (:func:`where`): ``FILE: no such file``,
         ``FILE: not a readable text CSV (…)``, ``FILE: empty file; expected a header …``,
-        ``FILE: no rows after the header (line N)``, ``FILE: line N: K fields, the header has M``.
+        ``FILE: line N: no rows after the header`` (N the header's line), ``FILE: line N: K fields,
+        the header has M``.
 
     Examples
     --------
@@ -92,16 +113,16 @@ def read_rows(path: str | os.PathLike[str], expected: str, *, allow_no_rows: boo
     try:
         data = file.read_bytes()
     except FileNotFoundError:
-        raise InvalidInputError(f"{file}: no such file") from None
+        raise InvalidInputError(f"{where(file)}: no such file") from None
     except OSError as exc:
-        raise InvalidInputError(f"{file}: not a readable text CSV ({exc.strerror or exc})") from None
+        raise InvalidInputError(f"{where(file)}: not a readable text CSV ({exc.strerror or exc})") from None
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise InvalidInputError(f"{file}: not a readable text CSV (not UTF-8: byte 0x{data[exc.start]:02x} "
+        raise InvalidInputError(f"{where(file)}: not a readable text CSV (not UTF-8: byte 0x{data[exc.start]:02x} "
                                 f"at offset {exc.start})") from None
     if "\x00" in text:
-        raise InvalidInputError(f"{file}: not a readable text CSV (holds NUL bytes)")
+        raise InvalidInputError(f"{where(file)}: not a readable text CSV (holds NUL bytes)")
     kept = [(n, line) for n, line in enumerate(_NEWLINE.split(text), start=1)
             if line.strip() and not line.lstrip().startswith("#")]
     records: list[tuple[int, list[str]]] = []
@@ -113,15 +134,15 @@ def read_rows(path: str | os.PathLike[str], expected: str, *, allow_no_rows: boo
                 records.append((kept[start][0], fields))
             start = reader.line_num
     except csv.Error as exc:
-        raise InvalidInputError(f"{file}: line {kept[start][0]}: not a readable CSV row ({exc})") from None
+        raise InvalidInputError(f"{where(file, kept[start][0])}: not a readable CSV row ({exc})") from None
     if not records:
-        raise InvalidInputError(f"{file}: empty file; expected a header {expected}")
+        raise InvalidInputError(f"{where(file)}: empty file; expected a header {expected}")
     header_line, header = records[0]
     header = [name.strip() for name in header]
     rows = records[1:]
     for n, fields in rows:
         if len(fields) != len(header):
-            raise InvalidInputError(f"{file}: line {n}: {len(fields)} fields, the header has {len(header)}")
+            raise InvalidInputError(f"{where(file, n)}: {len(fields)} fields, the header has {len(header)}")
     if not rows and not allow_no_rows:
-        raise InvalidInputError(f"{file}: no rows after the header (line {header_line})")
+        raise InvalidInputError(f"{where(file, header_line)}: no rows after the header")
     return CsvRows(header, header_line, rows)

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..structure.pinhole import CameraSet, intrinsic_matrices
-from ._csv import csv_text, number, read_rows
+from ._csv import csv_text, number, read_rows, where
 from .tracks import _floats, _indices
 
 __all__ = [
@@ -81,7 +81,7 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
     ([4], [500.0, 0.0, 320.0, 1600.0])
     """
     file = Path(path)
-    header, _, rows = read_rows(file, f"{','.join(MATRIX_COLUMNS)} or {','.join(POSE_COLUMNS)}")
+    header, header_line, rows = read_rows(file, f"{','.join(MATRIX_COLUMNS)} or {','.join(POSE_COLUMNS)}")
     column = {name: i for i, name in enumerate(header)}
     if all(c in column for c in MATRIX_COLUMNS):
         layout = MATRIX_COLUMNS
@@ -92,8 +92,8 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
         missing_k = [c for c in POSE_COLUMNS if c not in column]
         closer, missing = ("projection-matrix", missing_p) if len(missing_p) <= len(missing_k) else \
             ("intrinsics + pose", missing_k)
-        raise InvalidInputError(f"{file}: header lacks column(s) {', '.join(missing)} of the {closer} layout; "
-                                f"got {','.join(header)}")
+        raise InvalidInputError(f"{where(file, header_line)}: header lacks column(s) {', '.join(missing)} "
+                                f"of the {closer} layout; got {','.join(header)}")
     table = np.array([row for _, row in rows], dtype=object)
     lines = np.array([n for n, _ in rows])
     frames = _indices(file, table[:, column["frame"]], lines, "frame")
@@ -101,8 +101,8 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
     _, first, counts = np.unique(frames, return_index=True, return_counts=True)
     if np.any(counts > 1):
         dup = frames[first[counts > 1][0]]
-        where = lines[frames == dup]
-        raise InvalidInputError(f"{file}: lines {where[0]} and {where[1]}: frame {dup} has two cameras")
+        at = lines[frames == dup]
+        raise InvalidInputError(f"{where(file, at[0], at[1])}: frame {dup} has two cameras")
     if layout is MATRIX_COLUMNS:
         P = values.reshape(-1, 3, 4)
     else:
@@ -110,21 +110,21 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
         bad = ~((fx > 0) & (fy > 0))
         if bad.any():
             i = int(np.argmax(bad))
-            raise InvalidInputError(f"{file}: line {lines[i]}: fx and fy must be > 0 (pixels); got {fx[i]}, {fy[i]}")
+            raise InvalidInputError(f"{where(file, lines[i])}: fx and fy must be > 0 (pixels); got {fx[i]}, {fy[i]}")
         K = intrinsic_matrices(fx, fy, cx, cy, skew)
         R = values[:, 5:14].reshape(-1, 3, 3)
         off = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
         bad = ~(off <= _ROTATION_TOLERANCE)
         if bad.any():
             i = int(np.argmax(bad))
-            raise InvalidInputError(f"{file}: line {lines[i]}: r11..r33 is not a rotation (R Rᵀ differs from I "
+            raise InvalidInputError(f"{where(file, lines[i])}: r11..r33 is not a rotation (R Rᵀ differs from I "
                                     f"by {off[i]:.3g})")
         P = K @ np.concatenate([R, values[:, 14:17, None]], axis=2)
     sv = np.linalg.svd(P[:, :, :3], compute_uv=False)
     singular = ~(sv[:, -1] > _SINGULAR_RATIO * sv[:, 0])
     if singular.any():
         i = int(np.argmax(singular))
-        raise InvalidInputError(f"{file}: line {lines[i]}: frame {frames[i]}: not a camera, the left 3x3 block of "
+        raise InvalidInputError(f"{where(file, lines[i])}: frame {frames[i]}: not a camera, the left 3x3 block of "
                                 f"its projection matrix is not invertible")
     return CameraSet(P, frames)
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..tracking.grey import colour_to_grey
+from ._csv import where
 from .atomic import OutputDirectory
 
 __all__ = [
@@ -148,7 +149,7 @@ def _decode_image(path: Path) -> np.ndarray:
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
-        raise InvalidInputError(f"cannot read image {path}: {exc.strerror or exc}") from None
+        raise InvalidInputError(f"{where(path)}: cannot read the image ({exc.strerror or exc})") from None
     image = None
     if data.size:
         with quiet_decoders():
@@ -156,9 +157,9 @@ def _decode_image(path: Path) -> np.ndarray:
             if image is None:  # e.g. a 32-bit float TIFF, which only an unchanged read gives
                 image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     if image is None or image.ndim not in (2, 3) or image.size == 0:
-        raise InvalidInputError(f"{path} is not a readable image (empty, truncated or not an image)")
+        raise InvalidInputError(f"{where(path)}: not a readable image (empty, truncated or not an image)")
     if image.ndim == 3 and image.shape[2] not in (3, 4):
-        raise InvalidInputError(f"{path} has {image.shape[2]} channels; an image must be grey, BGR or BGRA")
+        raise InvalidInputError(f"{where(path)}: {image.shape[2]} channels; an image must be grey, BGR or BGRA")
     return grey_uint8(image)
 
 
@@ -191,7 +192,7 @@ class FrameSource:
                 shape = image.shape
             elif image.shape != shape:
                 raise InvalidInputError(
-                    f"{path} is {image.shape[1]}×{image.shape[0]} but {self.files[0].name} is "
+                    f"{where(path)}: {image.shape[1]}×{image.shape[0]}, but {self.files[0].name} is "
                     f"{shape[1]}×{shape[0]}; all frames must have the same size"
                 )
             yield image
@@ -230,7 +231,7 @@ def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
     try:
         import av
     except ImportError:
-        raise InvalidInputError(f"{path} is not a decodable video (OpenCV could not read it; PyAV is not installed)") from None
+        raise InvalidInputError(f"{where(path)}: not a decodable video (OpenCV could not read it; PyAV is not installed)") from None
     # libav's own log lines would go straight to stderr; PANIC routes only fatal ones to Python logging
     previous_level = av.logging.get_level()
     av.logging.set_level(av.logging.PANIC)
@@ -242,14 +243,14 @@ def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
                 yield frame.to_ndarray(format="gray")
     except (av.error.FFmpegError, ValueError, IndexError) as exc:  # type: ignore[attr-defined]
         if not produced:
-            raise InvalidInputError(f"{path} is not a decodable video or image ({_decoder_reason(exc)})") from None
+            raise InvalidInputError(f"{where(path)}: not a decodable video or image ({_decoder_reason(exc)})") from None
         raise InvalidInputError(
-            f"{path}: video decoding failed after frame {produced - 1} ({_decoder_reason(exc)})"
+            f"{where(path)}: video decoding failed after frame {produced - 1} ({_decoder_reason(exc)})"
         ) from None
     finally:
         av.logging.set_level(previous_level)
     if not produced:
-        raise InvalidInputError(f"{path} is not a decodable video (no frames)")
+        raise InvalidInputError(f"{where(path)}: not a decodable video (no frames)")
 
 
 def _decoder_reason(exc: Exception) -> str:
@@ -325,11 +326,11 @@ def read_frames(source: str | os.PathLike[str], min_frames: int = MIN_FRAMES) ->
         description = str(path)
     elif path.is_file():
         if _is_image_name(path):
-            raise NotEnoughDataError(f"{path} is a single image; tracking needs at least {min_frames} frames")
+            raise NotEnoughDataError(f"{where(path)}: a single image; tracking needs at least {min_frames} frames")
         # A video: check that something can decode it before promising frames.
         first = next(iter(_video_frames(path)), None)
         if first is None:
-            raise InvalidInputError(f"{path} is not a decodable video")
+            raise InvalidInputError(f"{where(path)}: not a decodable video")
         return FrameSource(description=str(path), video=path, count=_video_count(path))
     elif any(ch in text for ch in "*?["):
         files = sorted(

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ._csv import csv_text, number, read_rows
+from ._csv import csv_text, number, read_rows, where
 from .structure import structure_csv
 from .tracks import MAX_INDEX
 
@@ -128,27 +128,38 @@ def ground_truth_files(truth: GroundTruth) -> dict[str, str]:
     return files
 
 
-def _read_table(path: Path, required: list[str], *, allow_no_rows: bool = False) -> dict[str, np.ndarray]:
-    """Columns of a CSV file with a header, as float arrays (an empty cell is NaN); checks the required columns."""
-    header, _, rows = read_rows(path, f"with {', '.join(required)}", allow_no_rows=allow_no_rows)
+def _read_table(path: Path, required: list[str], *, allow_no_rows: bool = False) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Columns of a CSV file with a header, as float arrays (an empty cell is NaN), and the file line of each row.
+
+    Checks the required columns.
+    """
+    header, header_line, rows = read_rows(path, f"with {', '.join(required)}", allow_no_rows=allow_no_rows)
     missing = [c for c in required if c not in header]
     if missing:
-        raise InvalidInputError(f"{path}: missing column(s) {', '.join(missing)}; header is {','.join(header)}")
+        raise InvalidInputError(f"{where(path, header_line)}: missing column(s) {', '.join(missing)}; "
+                                f"header is {','.join(header)}")
     values = []
     for line_number, row in rows:
         try:
             values.append([float(v) if v.strip() else np.nan for v in row])
         except ValueError:
-            raise InvalidInputError(f"{path}, row {line_number}: expected numbers, got {','.join(row)}") from None
+            raise InvalidInputError(f"{where(path, line_number)}: expected numbers, got {','.join(row)}") from None
     table = np.array(values, dtype=np.float64).reshape(len(values), len(header))
-    return {name: table[:, k] for k, name in enumerate(header)}
+    return {name: table[:, k] for k, name in enumerate(header)}, np.array([n for n, _ in rows], dtype=np.int64)
 
 
-def _as_index(values: np.ndarray, path: Path, column: str) -> np.ndarray:
-    if len(values) and (not np.all(np.isfinite(values)) or np.any(values != np.round(values)) or values.min() < 0):
-        raise InvalidInputError(f"{path}: column {column} must hold non-negative integers")
+def _as_index(values: np.ndarray, path: Path, column: str, lines: np.ndarray) -> np.ndarray:
+    """The column as integers; the first row that is not one in 0 … MAX_INDEX is refused, naming its line."""
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(values) | (values != np.round(values)) | (values < 0)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InvalidInputError(f"{where(path, lines[k])}: column {column} must hold non-negative integers; "
+                                f"got {values[k]:g}")
     if len(values) and values.max() > MAX_INDEX:
-        raise InvalidInputError(f"{path}: column {column} holds {values.max():.0f}; at most {MAX_INDEX} is supported")
+        k = int(np.argmax(values))
+        raise InvalidInputError(f"{where(path, lines[k])}: column {column} holds {values[k]:.0f}; "
+                                f"at most {MAX_INDEX} is supported")
     return values.astype(np.int64)
 
 
@@ -158,9 +169,9 @@ def read_ground_truth_tracks(path: str | os.PathLike[str]) -> GroundTruth:
     Frames and tracks missing from the file are NaN / not visible.
     """
     path = Path(path)
-    table = _read_table(path, ["frame", "track_id", "x", "y", "visible"])
-    frames = _as_index(table["frame"], path, "frame")
-    ids = _as_index(table["track_id"], path, "track_id")
+    table, lines = _read_table(path, ["frame", "track_id", "x", "y", "visible"])
+    frames = _as_index(table["frame"], path, "frame", lines)
+    ids = _as_index(table["track_id"], path, "track_id", lines)
     track_ids, column = np.unique(ids, return_inverse=True)
     positions = np.full((frames.max() + 1, len(track_ids), 2), np.nan)
     visible = np.zeros((frames.max() + 1, len(track_ids)), dtype=bool)
@@ -181,21 +192,22 @@ def read_ground_truth(directory: str | os.PathLike[str]) -> GroundTruth:
     points_3d = rotation_rows = translations = scales = None
     points_path = folder / POINTS_FILE
     if points_path.is_file():
-        table = _read_table(points_path, ["track_id", "X", "Y", "Z"], allow_no_rows=True)
-        ids = _as_index(table["track_id"], points_path, "track_id")
+        table, lines = _read_table(points_path, ["track_id", "X", "Y", "Z"], allow_no_rows=True)
+        ids = _as_index(table["track_id"], points_path, "track_id", lines)
         points_3d = np.full((len(tracks.track_ids), 3), np.nan)
-        where = np.searchsorted(tracks.track_ids, ids)
-        known = (where < len(tracks.track_ids)) & (tracks.track_ids[np.minimum(where, len(tracks.track_ids) - 1)] == ids)
+        slot = np.searchsorted(tracks.track_ids, ids)
+        known = (slot < len(tracks.track_ids)) & (tracks.track_ids[np.minimum(slot, len(tracks.track_ids) - 1)] == ids)
         if not known.all():
-            raise InvalidInputError(f"{points_path}: track_id {ids[~known][0]} is not in {TRACKS_FILE}")
-        points_3d[where] = np.column_stack([table["X"], table["Y"], table["Z"]])
+            k = int(np.argmin(known))
+            raise InvalidInputError(f"{where(points_path, lines[k])}: track_id {ids[k]} is not in {TRACKS_FILE}")
+        points_3d[slot] = np.column_stack([table["X"], table["Y"], table["Z"]])
     motion_path = folder / MOTION_FILE
     if motion_path.is_file():
-        table = _read_table(motion_path, MOTION_COLUMNS, allow_no_rows=True)
-        frames = _as_index(table["frame"], motion_path, "frame")
+        table, lines = _read_table(motion_path, MOTION_COLUMNS, allow_no_rows=True)
+        frames = _as_index(table["frame"], motion_path, "frame", lines)
         n_frames = tracks.positions.shape[0]
         if len(frames) != n_frames or not np.array_equal(np.sort(frames), np.arange(n_frames)):
-            raise InvalidInputError(f"{motion_path}: expected one row for each frame 0 … {n_frames - 1}")
+            raise InvalidInputError(f"{where(motion_path)}: expected one row for each frame 0 … {n_frames - 1}")
         order = np.argsort(frames)
         rotation_rows = np.column_stack([table[c] for c in MOTION_COLUMNS[1:7]])[order].reshape(-1, 2, 3)
         translations = np.column_stack([table["t_x"], table["t_y"]])[order]

@@ -17,7 +17,7 @@ import numpy as np
 from .._validation import check_positive
 from ..errors import InvalidInputError
 from ..structure.pinhole import intrinsic_matrices
-from ._csv import number, read_rows
+from ._csv import number, read_rows, where
 from .tracks import _floats, _indices
 
 __all__ = ["INTRINSICS_COLUMNS", "intrinsics_csv", "intrinsics_from_focal", "read_intrinsics"]
@@ -55,7 +55,7 @@ def read_intrinsics(path: str | os.PathLike[str], frames: object) -> np.ndarray:
     header, header_line, rows = read_rows(file, ",".join(INTRINSICS_COLUMNS))
     missing = [c for c in INTRINSICS_COLUMNS if c not in header]
     if missing:
-        raise InvalidInputError(f"{file} row {header_line} (header): missing column(s) {', '.join(missing)}; got {header}")
+        raise InvalidInputError(f"{where(file, header_line)}: missing column(s) {', '.join(missing)}; got {','.join(header)}")
     lines = np.array([n for n, _ in rows])
     index = {name: i for i, name in enumerate(header)}
     column = {c: np.array([r[index[c]] for _, r in rows], dtype=object) for c in INTRINSICS_COLUMNS}
@@ -63,7 +63,7 @@ def read_intrinsics(path: str | os.PathLike[str], frames: object) -> np.ndarray:
     bad = ~((fx > 0) & (fy > 0))
     if bad.any():
         i = int(np.argmax(bad))
-        raise InvalidInputError(f"{file}: line {lines[i]}: fx and fy must be > 0 (pixels; K would be singular); "
+        raise InvalidInputError(f"{where(file, lines[i])}: fx and fy must be > 0 (pixels; K would be singular); "
                                 f"got {fx[i]}, {fy[i]}")
     K = intrinsic_matrices(fx, fy, cx, cy, skew)
     wanted = np.asarray(frames, dtype=np.int64).ravel()
@@ -75,13 +75,13 @@ def read_intrinsics(path: str | os.PathLike[str], frames: object) -> np.ndarray:
     twice = np.flatnonzero(np.diff(sorted_frames) == 0)
     if twice.size:
         dup = sorted_frames[twice[0]]
-        where = lines[given == dup]
-        raise InvalidInputError(f"{file}: lines {where[0]} and {where[1]}: frame {dup} has two rows")
+        at = lines[given == dup]
+        raise InvalidInputError(f"{where(file, at[0], at[1])}: frame {dup} has two rows")
     pos = np.clip(np.searchsorted(sorted_frames, wanted), 0, len(given) - 1)
     found = sorted_frames[pos] == wanted
     if not found.all():
         missing = wanted[~found][0]
-        raise InvalidInputError(f"{file}: no intrinsics for frame {missing} ({file.name} has frames {given.min()}-"
+        raise InvalidInputError(f"{where(file)}: no intrinsics for frame {missing} ({file.name} has frames {given.min()}-"
                                 f"{given.max()}; give one row for all frames or one per frame)")
     return K[order[pos]]
 

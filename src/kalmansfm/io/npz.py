@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
+from ._csv import where
 
 __all__ = ["load_npz"]
 
@@ -35,4 +36,4 @@ def load_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
         with np.load(file, allow_pickle=False) as data:
             return {name: data[name] for name in data.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise InvalidInputError(f"{file}: not a readable NPZ file ({exc or type(exc).__name__})") from None
+        raise InvalidInputError(f"{where(file)}: not a readable NPZ file ({exc or type(exc).__name__})") from None

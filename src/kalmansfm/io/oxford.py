@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..structure.pinhole import CameraSet
+from ._csv import where
 
 __all__ = ["OxfordDataset", "read_oxford"]
 
@@ -61,7 +62,7 @@ def _layout(root: Path) -> tuple[list[Path], list[Path], Path, Path, list[int]]:
         views = sorted(root.glob("2D/*.P"))
         return views, [p.with_suffix(".corners") for p in views], root / "2D" / "nview-corners", root / "3D" / "p3d", [
             int(p.stem) for p in views]
-    raise InvalidInputError(f"{root}: not an Oxford VGG data set folder (expected 2D/house.nview-corners or "
+    raise InvalidInputError(f"{where(root)}: not an Oxford VGG data set folder (expected 2D/house.nview-corners or "
                             "2D/nview-corners)")
 
 
@@ -73,10 +74,10 @@ def _table(path: Path, columns: int, *, matches: bool = False) -> np.ndarray:
         else:
             table = np.loadtxt(path, dtype=float, ndmin=2)
     except (OSError, ValueError) as exc:
-        raise InvalidInputError(f"{path}: not a table of numbers ({exc})") from None
+        raise InvalidInputError(f"{where(path)}: not a table of numbers ({exc})") from None
     table = np.atleast_2d(table)
     if table.shape[1] != columns or not np.isfinite(table).all():
-        raise InvalidInputError(f"{path}: expected {columns} finite numbers per line; got a {table.shape} table")
+        raise InvalidInputError(f"{where(path)}: expected {columns} finite numbers per line; got a {table.shape} table")
     return table
 
 
@@ -107,20 +108,20 @@ def read_oxford(folder: str | os.PathLike[str]) -> OxfordDataset:
     root = Path(folder)
     views, corner_files, match_file, points_file, frames = _layout(root)
     if not views:
-        raise InvalidInputError(f"{root}: no camera files (*.P)")
+        raise InvalidInputError(f"{where(root)}: no camera files (*.P)")
     P = np.stack([_table(p, 4) for p in views])
     if P.shape[1:] != (3, 4):
-        raise InvalidInputError(f"{root}: every camera file must hold 3 lines of 4 numbers")
+        raise InvalidInputError(f"{where(root)}: every camera file must hold 3 lines of 4 numbers")
     match = _table(match_file, len(views), matches=True).astype(np.int64)
     points = _table(points_file, 3)
     if len(points) != len(match):
-        raise InvalidInputError(f"{match_file}: {len(match)} rows, but {points_file} holds {len(points)} points")
+        raise InvalidInputError(f"{where(match_file)}: {len(match)} rows, but {points_file} holds {len(points)} points")
     observations = np.full((len(views), len(points), 2), np.nan)
     for v, corner_file in enumerate(corner_files):  # one match-table column per view (a handful of views)
         xy = _table(corner_file, 2)
         seen = match[:, v] >= 0
         if seen.any() and match[seen, v].max() >= len(xy):
-            raise InvalidInputError(f"{match_file}: column {v + 1} refers to corner {match[seen, v].max()}, but "
+            raise InvalidInputError(f"{where(match_file)}: column {v + 1} refers to corner {match[seen, v].max()}, but "
                                     f"{corner_file.name} lists {len(xy)}")
         observations[v, seen] = xy[match[seen, v]]
     return OxfordDataset(CameraSet.from_matrices(P, frames), observations, points)

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..structure.pinhole import CameraSet
 from ..tracking.tracks import Tracks
-from ._csv import read_rows
+from ._csv import read_rows, where
 from .cameras import read_cameras
 from .frames import quiet_decoders
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
@@ -77,7 +77,7 @@ class RunFolder:
             with quiet_decoders():
                 image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if image is None:
-                raise InvalidInputError(f"{path}: cannot be read as a PNG image")
+                raise InvalidInputError(f"{where(path)}: cannot be read as a PNG image")
             if image.dtype != np.uint8:
                 image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
             if image.ndim == 3 and image.shape[2] == 4:
@@ -132,7 +132,7 @@ def load_run(run_dir: str | Path) -> RunFolder:
         ground_truth_tracks = read_ground_truth_tracks(truth_path).aligned_to(tracks.track_ids)
         if ground_truth_tracks.shape[0] != tracks.n_frames:
             raise InvalidInputError(
-                f"{truth_path}: holds {ground_truth_tracks.shape[0]} frames but tracks.npz holds {tracks.n_frames}"
+                f"{where(truth_path)}: holds {ground_truth_tracks.shape[0]} frames but tracks.npz holds {tracks.n_frames}"
             )
     points = {name: read_points_table(path_of(name)) if path_of(name) else None for name in ("structure.csv", POINTS_FILE)}
     motion_path = path_of("motion.csv")

@@ -31,7 +31,7 @@ import numpy as np
 from .._validation import LabelledEnum
 from ..errors import InvalidInputError
 from ..structure.points import PointStatus
-from ._csv import csv_text, number, read_rows
+from ._csv import csv_text, number, read_rows, where
 
 MOTION_COLUMNS = ("frame", "i_x", "i_y", "i_z", "j_x", "j_y", "j_z", "t_x", "t_y")
 #: The plain layout: a point per track (ground truth, other tools).
@@ -247,11 +247,11 @@ def _read_columns(
     hold a label of the status enum given (read as its code).
     """
     words = words or {}
-    header, _, rows = read_rows(path, f"with columns {','.join(columns)}", allow_no_rows=True)
+    header, header_line, rows = read_rows(path, f"with columns {','.join(columns)}", allow_no_rows=True)
     missing = [c for c in columns if c not in header]
     if missing:
         raise InvalidInputError(
-            f"{path}: missing column(s) {', '.join(missing)}; expected {','.join(columns)}, "
+            f"{where(path, header_line)}: missing column(s) {', '.join(missing)}; expected {','.join(columns)}, "
             f"got header {','.join(header)}"
         )
     index = {name: i for i, name in enumerate(header)}
@@ -267,7 +267,7 @@ def _read_columns(
                     values[c].append(np.nan if cell == "" else float(cell))
             except (TypeError, ValueError, KeyError, AttributeError):
                 expected = "one of " + ", ".join(s.label for s in words[c]) if c in words else "a number"
-                raise InvalidInputError(f"{path}, line {line}: column {c!r} must be {expected}; got {cell!r}") from None
+                raise InvalidInputError(f"{where(path, line)}: column {c!r} must be {expected}; got {cell!r}") from None
     return {c: np.asarray(v, dtype=float) for c, v in values.items()}
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from .._version import __version__
 from ..errors import InvalidInputError
 from ..tracking.settings import TrackerSettings
+from ._csv import where
 from .records import from_json, to_json
 
 __all__ = [
@@ -438,19 +439,19 @@ def read_summary(path: str | os.PathLike[str]) -> RunSummary:
     """
     path = Path(path)
     if not path.is_file():
-        raise InvalidInputError(f"{path}: not found; a run folder must contain the summary.json that kalmansfm writes")
+        raise InvalidInputError(f"{where(path)}: not found; a run folder must contain the summary.json that kalmansfm writes")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
-        raise InvalidInputError(f"{path}: is not UTF-8 text; expected a JSON object") from None
+        raise InvalidInputError(f"{where(path)}: not UTF-8 text; expected a JSON object") from None
     except json.JSONDecodeError as exc:
-        raise InvalidInputError(f"{path}: is not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
+        raise InvalidInputError(f"{where(path, exc.lineno)}: not valid JSON (column {exc.colno}: {exc.msg})") from None
     if not isinstance(data, dict):
-        raise InvalidInputError(f"{path}: expected a JSON object at the top level; got {type(data).__name__}")
+        raise InvalidInputError(f"{where(path)}: expected a JSON object at the top level; got {type(data).__name__}")
     version = data.get("schema_version")
     if version != SCHEMA_VERSION:
         raise InvalidInputError(
-            f"{path}: schema_version {version!r} is not {SCHEMA_VERSION}; it was written by another kalmansfm version "
+            f"{where(path)}: schema_version {version!r} is not {SCHEMA_VERSION}; it was written by another kalmansfm version "
             f"(rerun the command that made it)"
         )
     return from_json(RunSummary, data, str(path))

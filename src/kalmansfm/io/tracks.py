@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..tracking.settings import TrackerSettings
 from ..tracking.tracks import LOST, MEASUREMENT_CODES, NO_TRACK, POSITION_CODES, Tracks, TrackStatus
-from ._csv import csv_text, number, read_rows
+from ._csv import csv_text, number, read_rows, where
 from .npz import load_npz
 from .records import from_json, to_json
 
@@ -186,7 +186,7 @@ def read_tracks(path: str | os.PathLike[str]) -> Tracks:
     """
     file = Path(path)
     if not file.is_file():
-        raise InvalidInputError(f"{file}: no such file")
+        raise InvalidInputError(f"{where(file)}: no such file")
     if file.suffix.lower() != ".npz":
         return read_tracks_csv(file)
     tracks = read_tracks_npz(file)
@@ -207,7 +207,7 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
     header, header_line, rows = read_rows(file, f"with columns {','.join(_REQUIRED)}")
     missing = [c for c in _REQUIRED if c not in header]
     if missing:
-        raise InvalidInputError(f"{file}: line {header_line}: header lacks column(s) {', '.join(missing)}; got {','.join(header)}")
+        raise InvalidInputError(f"{where(file, header_line)}: header lacks column(s) {', '.join(missing)}; got {','.join(header)}")
     column = {name: i for i, name in enumerate(header)}
     lines = np.array([n for n, _ in rows])
     table = np.array([row for _, row in rows], dtype=object)
@@ -218,7 +218,7 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
         bad = [k for k, w in enumerate(words) if w not in known]
         if bad:
             raise InvalidInputError(
-                f"{file}: line {lines[bad[0]]}: status must be {', '.join(known)}; got {words[bad[0]]!r}"
+                f"{where(file, lines[bad[0]])}: status must be {', '.join(known)}; got {words[bad[0]]!r}"
             )
         status = np.array([known[w] for w in words], dtype=np.int8)
     else:
@@ -238,7 +238,7 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
         bad = measured_rows & ~(std > 0).all(axis=1)
         if bad.any():
             i = int(np.argmax(bad))
-            raise InvalidInputError(f"{file}: line {lines[positioned][i]}: std_x and std_y must be > 0; got {std[i].tolist()}")
+            raise InvalidInputError(f"{where(file, lines[positioned][i])}: std_x and std_y must be > 0; got {std[i].tolist()}")
 
     frames = np.unique(frame)
     track_ids = np.unique(track)
@@ -248,9 +248,9 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
     unique_keys, counts = np.unique(key, return_counts=True)
     if (counts > 1).any():
         dup = unique_keys[counts > 1][0]
-        where = lines[key == dup]
+        at = lines[key == dup]
         raise InvalidInputError(
-            f"{file}: lines {where[0]} and {where[1]}: frame {frame[key == dup][0]}, track_id {track[key == dup][0]} given twice"
+            f"{where(file, at[0], at[1])}: frame {frame[key == dup][0]}, track_id {track[key == dup][0]} given twice"
         )
     shape = (len(frames), len(track_ids))
     status_table = np.zeros(shape, np.int8)
@@ -276,11 +276,11 @@ def _indices(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np
         try:
             number = float(text)
         except ValueError:
-            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be an integer; got {text!r}") from None
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be an integer; got {text!r}") from None
         if not np.isfinite(number) or number != int(number):
-            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be an integer; got {text!r}")
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be an integer; got {text!r}")
         if not 0 <= number <= MAX_INDEX:
-            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be in 0 … {MAX_INDEX}; got {text.strip()}")
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be in 0 … {MAX_INDEX}; got {text.strip()}")
         out[i] = int(number)
     return out
 
@@ -292,15 +292,15 @@ def _floats(file: Path, values: np.ndarray, lines: np.ndarray, name: str, *, fin
         try:
             out[i] = float(text) if (text.strip() or finite) else np.nan
         except ValueError:
-            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be a number; got {text!r}") from None
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be a number; got {text!r}") from None
         if finite and not np.isfinite(out[i]):
-            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must be finite; got {text.strip()!r}")
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be finite; got {text.strip()!r}")
         if finite and abs(out[i]) > MAX_COORDINATE_PX:
             raise InvalidInputError(
-                f"{file}: line {lines[i]}: {name} must be within ±{MAX_COORDINATE_PX:g} px; got {text.strip()!r}"
+                f"{where(file, lines[i])}: {name} must be within ±{MAX_COORDINATE_PX:g} px; got {text.strip()!r}"
             )
         if not finite and np.isinf(out[i]):
-            raise InvalidInputError(f"{file}: line {lines[i]}: {name} must not be infinite; got {text.strip()!r}")
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must not be infinite; got {text.strip()!r}")
     return out
 
 
@@ -309,7 +309,7 @@ def _real(file: Path, arrays: dict[str, np.ndarray], name: str, shape: tuple[int
         return None
     value = arrays[name]
     if value.dtype.kind not in "fiu" or value.shape != shape:
-        raise InvalidInputError(f"{file}: {name} must be a real numeric array of shape {shape}; got {value.dtype} {value.shape}")
+        raise InvalidInputError(f"{where(file)}: {name} must be a real numeric array of shape {shape}; got {value.dtype} {value.shape}")
     return value.astype(np.float64)
 
 
@@ -319,14 +319,14 @@ def _meta(file: Path, arrays: dict[str, np.ndarray]) -> tuple[TrackerSettings | 
     try:
         meta = json.loads(str(arrays["meta"]))
     except ValueError as exc:
-        raise InvalidInputError(f"{file}: meta is not valid JSON ({exc})") from None
+        raise InvalidInputError(f"{where(file)}: meta is not valid JSON ({exc})") from None
     if not isinstance(meta, dict):
-        raise InvalidInputError(f"{file}: meta must hold a JSON object; got {type(meta).__name__}")
-    settings = None if meta.get("settings") is None else from_json(TrackerSettings, meta["settings"], f"{file}: meta.settings")
+        raise InvalidInputError(f"{where(file)}: meta must hold a JSON object; got {type(meta).__name__}")
+    settings = None if meta.get("settings") is None else from_json(TrackerSettings, meta["settings"], f"{where(file)}: meta.settings")
     smoothed = meta.get("smoothed", False)
     if isinstance(smoothed, bool) or (isinstance(smoothed, int) and smoothed >= 0):
         return settings, smoothed
-    raise InvalidInputError(f"{file}: meta.smoothed must be true, false or a lag >= 0; got {smoothed!r}")
+    raise InvalidInputError(f"{where(file)}: meta.smoothed must be true, false or a lag >= 0; got {smoothed!r}")
 
 
 def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
@@ -338,39 +338,39 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     arrays = load_npz(file)
     missing = [k for k in ("positions", "status", "track_ids") if k not in arrays]
     if missing:
-        raise InvalidInputError(f"{file}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(arrays)) or 'none'}")
+        raise InvalidInputError(f"{where(file)}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(arrays)) or 'none'}")
     positions, status, track_ids = arrays["positions"], arrays["status"], arrays["track_ids"]
     if positions.ndim != 3 or positions.shape[2] != 2 or positions.dtype.kind not in "fiu":
-        raise InvalidInputError(f"{file}: positions must be a numeric (frames, points, 2) array; got {positions.dtype} {positions.shape}")
+        raise InvalidInputError(f"{where(file)}: positions must be a numeric (frames, points, 2) array; got {positions.dtype} {positions.shape}")
     F, P = positions.shape[:2]
     if status.shape != (F, P) or status.dtype.kind not in "iu":
-        raise InvalidInputError(f"{file}: status must be an integer ({F}, {P}) array; got {status.dtype} {status.shape}")
+        raise InvalidInputError(f"{where(file)}: status must be an integer ({F}, {P}) array; got {status.dtype} {status.shape}")
     if track_ids.shape != (P,) or track_ids.dtype.kind not in "iu":
-        raise InvalidInputError(f"{file}: track_ids must be an integer ({P},) array; got {track_ids.dtype} {track_ids.shape}")
+        raise InvalidInputError(f"{where(file)}: track_ids must be an integer ({P},) array; got {track_ids.dtype} {track_ids.shape}")
     if len(np.unique(track_ids)) != P:
-        raise InvalidInputError(f"{file}: track_ids must be distinct")
+        raise InvalidInputError(f"{where(file)}: track_ids must be distinct")
     if P and (track_ids.min() < 0 or track_ids.max() > MAX_INDEX):
-        raise InvalidInputError(f"{file}: track_ids must be in 0 … {MAX_INDEX}")
+        raise InvalidInputError(f"{where(file)}: track_ids must be in 0 … {MAX_INDEX}")
     bad_code = ~np.isin(status, [int(s) for s in TrackStatus])
     if bad_code.any():
         f, p = np.argwhere(bad_code)[0]
-        raise InvalidInputError(f"{file}: status[{f}, {p}] = {status[f, p]}; expected one of {', '.join(str(int(s)) for s in TrackStatus)}")
+        raise InvalidInputError(f"{where(file)}: status[{f}, {p}] = {status[f, p]}; expected one of {', '.join(str(int(s)) for s in TrackStatus)}")
     xy = positions.astype(np.float64)
     bad = np.isin(status, POSITION_CODES) & ~np.isfinite(xy).all(axis=2)
     if bad.any():
         f, p = np.argwhere(bad)[0]
-        raise InvalidInputError(f"{file}: positions[{f}, {p}] = {xy[f, p].tolist()} is not finite but status says {TrackStatus(status[f, p]).label}")
+        raise InvalidInputError(f"{where(file)}: positions[{f}, {p}] = {xy[f, p].tolist()} is not finite but status says {TrackStatus(status[f, p]).label}")
     far = np.abs(np.nan_to_num(xy)) > MAX_COORDINATE_PX
     if far.any():
         f, p, _ = np.argwhere(far)[0]
-        raise InvalidInputError(f"{file}: positions[{f}, {p}] = {xy[f, p].tolist()} is beyond ±{MAX_COORDINATE_PX:g} px")
+        raise InvalidInputError(f"{where(file)}: positions[{f}, {p}] = {xy[f, p].tolist()} is beyond ±{MAX_COORDINATE_PX:g} px")
     frames = np.arange(F)
     if "frames" in arrays:
         frames = arrays["frames"]
         if frames.shape != (F,) or frames.dtype.kind not in "iu":
-            raise InvalidInputError(f"{file}: frames must be an integer ({F},) array; got {frames.dtype} {frames.shape}")
+            raise InvalidInputError(f"{where(file)}: frames must be an integer ({F},) array; got {frames.dtype} {frames.shape}")
         if F and (frames.min() < 0 or frames.max() > MAX_INDEX or (np.diff(frames) <= 0).any()):
-            raise InvalidInputError(f"{file}: frames must be increasing frame numbers in 0 … {MAX_INDEX}")
+            raise InvalidInputError(f"{where(file)}: frames must be increasing frame numbers in 0 … {MAX_INDEX}")
     states = _real(file, arrays, "states", (F, P, 4))
     covariances = _real(file, arrays, "covariances", (F, P, 4, 4))
     scores = _real(file, arrays, "scores", (F, P))
@@ -379,10 +379,10 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
         bad = np.isin(status, MEASUREMENT_CODES) & ~(np.isfinite(variances) & (variances > 0)).all(axis=2)
         if bad.any():
             f, p = np.argwhere(bad)[0]
-            raise InvalidInputError(f"{file}: covariances[{f}, {p}] has a non-positive or non-finite position variance")
+            raise InvalidInputError(f"{where(file)}: covariances[{f}, {p}] has a non-positive or non-finite position variance")
     size = arrays.get("image_size")
     if size is not None and (size.shape != (2,) or size.dtype.kind not in "iu" or (size <= 0).any()):
-        raise InvalidInputError(f"{file}: image_size must be two positive integers (width, height); got {size!r}")
+        raise InvalidInputError(f"{where(file)}: image_size must be two positive integers (width, height); got {size!r}")
     settings, smoothed = _meta(file, arrays)
     return Tracks(
         positions=xy,
@@ -414,7 +414,8 @@ def read_points_csv(path: str | os.PathLike[str], *, with_lines: bool = False) -
     Raises
     ------
     InvalidInputError
-        Naming the file and the row (its 1-based line in the file) of the problem.
+        ``FILE: line N: …``, N the 1-based line of the file where the problem is (the header's for a
+        missing column).
 
     Examples
     --------
@@ -429,7 +430,7 @@ def read_points_csv(path: str | os.PathLike[str], *, with_lines: bool = False) -
     header, header_line, rows = read_rows(path, "with columns x,y (and optionally track_id)")
     missing = [c for c in ("x", "y") if c not in header]
     if missing:
-        raise InvalidInputError(f"{path} row {header_line} (header): missing column(s) {', '.join(missing)}; got {header}")
+        raise InvalidInputError(f"{where(path, header_line)}: missing column(s) {', '.join(missing)}; got {','.join(header)}")
     column = {name: i for i, name in enumerate(header)}
     has_ids = "track_id" in column
     points = np.empty((len(rows), 2))
@@ -441,9 +442,9 @@ def read_points_csv(path: str | os.PathLike[str], *, with_lines: bool = False) -
         try:
             points[k] = float(x), float(y)
         except ValueError:
-            raise InvalidInputError(f"{path} row {line}: x and y must be numbers; got x={x!r}, y={y!r}") from None
+            raise InvalidInputError(f"{where(path, line)}: x and y must be numbers; got x={x!r}, y={y!r}") from None
         if not np.isfinite(points[k]).all():
-            raise InvalidInputError(f"{path} row {line}: x and y must be finite; got {x}, {y}")
+            raise InvalidInputError(f"{where(path, line)}: x and y must be finite; got {x}, {y}")
         if has_ids:
             text = fields[column["track_id"]]
             try:
@@ -452,11 +453,11 @@ def read_points_csv(path: str | os.PathLike[str], *, with_lines: bool = False) -
                 number = np.nan
             if not (np.isfinite(number) and number == int(number) and 0 <= number <= MAX_INDEX):
                 raise InvalidInputError(
-                    f"{path} row {line}: track_id must be an integer in 0 … {MAX_INDEX}; got {text!r}"
+                    f"{where(path, line)}: track_id must be an integer in 0 … {MAX_INDEX}; got {text!r}"
                 )
             ids[k] = int(number)
             if int(ids[k]) in seen:
-                raise InvalidInputError(f"{path} row {line}: track_id {ids[k]} repeats row {seen[int(ids[k])]}")
+                raise InvalidInputError(f"{where(path, line)}: track_id {ids[k]} repeats line {seen[int(ids[k])]}")
             seen[int(ids[k])] = line
     if with_lines:
         return points, (ids if has_ids else None), lines
@@ -465,7 +466,7 @@ def read_points_csv(path: str | os.PathLike[str], *, with_lines: bool = False) -
 
 def check_points_inside(points: np.ndarray, width: int, height: int, source: str,
                         lines: np.ndarray | None = None) -> None:
-    """Raise naming the CSV row of the first point outside a ``width``×``height`` image.
+    """Raise ``SOURCE: line N: …`` for the first point outside a ``width``×``height`` image.
 
     ``lines`` are the file's 1-based line of each point (``read_points_csv(..., with_lines=True)``);
     without them the points are taken to follow the header on lines 2, 3, ….
@@ -475,5 +476,5 @@ def check_points_inside(points: np.ndarray, width: int, height: int, source: str
         k = int(np.flatnonzero(outside)[0])
         line = int(lines[k]) if lines is not None else k + 2
         raise InvalidInputError(
-            f"{source} row {line}: point ({points[k, 0]:g}, {points[k, 1]:g}) lies outside the {width}×{height} image"
+            f"{where(source, line)}: point ({points[k, 0]:g}, {points[k, 1]:g}) lies outside the {width}×{height} image"
         )

@@ -98,7 +98,7 @@ def bad_pose(index, value):
         (MATRIX_COLUMNS, [[0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0], [5, 1, 2, 3, 0, 2, 4, 6, 0, 0, 0, 1, 0]],
          "line 3: frame 5: not a camera"),
         (MATRIX_COLUMNS, [[1.5] + [1.0] * 12], "line 2: frame must be an integer"),
-        (MATRIX_COLUMNS, [], r"no rows after the header \(line 1\)"),
+        (MATRIX_COLUMNS, [], r"line 1: no rows after the header$"),
     ],
 )
 def test_bad_camera_files_name_the_file_and_line(tmp_path, header, rows, message):

@@ -5,6 +5,8 @@ and must read it to the same result with a byte-order mark, ``#`` comment lines,
 CRLF line ends and spaces around the header names; a ragged row, an empty file, a missing file,
 a file that is not UTF-8 and (where the format needs rows) a header-only file are each refused
 with an :class:`~kalmansfm.InvalidInputError` naming the file (and the line where there is one).
+Each reader's own checks (a non-number cell, a missing column) name ``FILE: line N`` the same way,
+N counting the comment and blank lines before it.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ def _in_truth_folder(name: str) -> Callable[[Path], object]:
 class Case:
     text: str  # the valid file
     read: Callable[[Path], object]
-    header_only: str | None = re.escape(": no rows after the header (line 2)")  # its error; None: it reads
+    header_only: str | None = re.escape(": line 2: no rows after the header")  # its error; None: it reads
     optional: bool = False  # the file may be absent (its reader then gives no error)
 
 
@@ -234,5 +236,41 @@ def test_points_outside_the_image_name_their_file_line(tmp_path):
     f.write_text("# start points\nx,y\n\n10,10\n500,20\n")
     points, ids, lines = read_points_csv(f, with_lines=True)
     assert ids is None and lines.tolist() == [4, 5]
-    with pytest.raises(InvalidInputError, match="points.csv row 5: point \\(500, 20\\) lies outside"):
+    with pytest.raises(InvalidInputError, match="points.csv: line 5: point \\(500, 20\\) lies outside"):
         check_points_inside(points, 160, 120, str(f), lines)
+
+
+# Every reader with columns to check; the fusion tables are read as text (no schema to break).
+SCHEMA_CASES = [name for name in CASES if not name.startswith("fusion_tables/")]
+
+
+def _key_column(header: str) -> int:
+    """A column every layout of the file needs (x, X or frame, else track_id), by its place in the header."""
+    names = header.split(",")
+    return names.index(next(n for n in ("x", "X", "frame", "track_id") if n in names))
+
+
+@pytest.mark.parametrize("name", SCHEMA_CASES)
+def test_a_non_number_cell_is_refused_naming_its_file_line(tmp_path, name):
+    lines = _lines(CASES[name].text)
+    assert len(lines) >= 3
+    fields = lines[2].split(",")
+    fields[_key_column(lines[0])] = "one"
+    # line 1 header, 2 a good row, 3 a comment, 4 blank, 5 the bad row
+    text = "\n".join([lines[0], lines[1], "# a comment", "", ",".join(fields), *lines[3:]]) + "\n"
+    path = _write(tmp_path, name, text.encode())
+    message = _refused(CASES[name], path, re.escape(f"{path}: line 5: ") + ".*one")
+    assert message.startswith(f"{path}: line 5: ")
+
+
+@pytest.mark.parametrize("name", SCHEMA_CASES)
+def test_a_missing_column_is_refused_naming_the_header_line(tmp_path, name):
+    lines = _lines(CASES[name].text)
+    names = lines[0].split(",")
+    gone = names[_key_column(lines[0])]
+    names[_key_column(lines[0])] = "renamed"
+    # line 1 a comment, 2 blank, 3 the header
+    text = "\n".join(["# a comment", "", ",".join(names), *lines[1:]]) + "\n"
+    path = _write(tmp_path, name, text.encode())
+    message = _refused(CASES[name], path, re.escape(f"{path}: line 3: ") + r".*\b" + re.escape(gone) + r"\b")
+    assert message.startswith(f"{path}: line 3: ") and "column" in message

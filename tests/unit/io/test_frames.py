@@ -49,7 +49,7 @@ def test_missing_empty_and_too_short(tmp_path):
 def test_bad_files_are_named(tmp_path):
     write_frames(tmp_path / "fake", ["1.png", "2.png", "3.png"])
     (tmp_path / "fake" / "2.png").write_text("this is text")
-    with pytest.raises(InvalidInputError, match=r"2\.png is not a readable image"):
+    with pytest.raises(InvalidInputError, match=r"2\.png: not a readable image"):
         list(read_frames(tmp_path / "fake"))
 
     write_frames(tmp_path / "cut", ["1.png", "2.png", "3.png"], size=(64, 48))
@@ -61,7 +61,7 @@ def test_bad_files_are_named(tmp_path):
     write_frames(tmp_path / "sizes", ["1.png", "2.png"])
     write_frames(tmp_path / "other", ["3.png"], size=(9, 6))
     (tmp_path / "other" / "3.png").rename(tmp_path / "sizes" / "3.png")
-    with pytest.raises(InvalidInputError, match=r"3\.png is 9×6 but 1\.png is 8×6"):
+    with pytest.raises(InvalidInputError, match=r"3\.png: 9×6, but 1\.png is 8×6"):
         list(read_frames(tmp_path / "sizes"))
 
 
@@ -88,7 +88,7 @@ def test_undecodable_video_message_is_the_same_with_or_without_pyav(tmp_path, mo
         monkeypatch.setitem(sys.modules, "av", None)  # makes `import av` raise ImportError
     bogus = tmp_path / "broken.mp4"
     bogus.write_bytes(b"\x00garbage" * 100)
-    with pytest.raises(InvalidInputError, match=r"broken\.mp4 is not a decodable video"):
+    with pytest.raises(InvalidInputError, match=r"broken\.mp4: not a decodable video"):
         list(read_frames(bogus))
 
 

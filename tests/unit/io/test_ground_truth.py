@@ -19,10 +19,10 @@ def test_sparse_tracks_file_becomes_dense_arrays(tmp_path):
 @pytest.mark.parametrize(
     "text, message",
     [
-        ("frame,track_id,x,y\n0,0,1,2\n", "missing column"),
-        ("frame,track_id,x,y,visible\n0,0,one,2,1\n", "row 2"),
+        ("frame,track_id,x,y\n0,0,1,2\n", r"line 1: missing column\(s\) visible"),
+        ("frame,track_id,x,y,visible\n0,0,one,2,1\n", "line 2: expected numbers, got 0,0,one,2,1"),
         ("frame,track_id,x,y,visible\n0,0,1,2\n", "line 2: 4 fields, the header has 5"),
-        ("frame,track_id,x,y,visible\n0.5,0,1,2,1\n", "frame"),
+        ("frame,track_id,x,y,visible\n0.5,0,1,2,1\n", "line 2: column frame must hold non-negative integers; got 0.5"),
         ("", "empty"),
     ],
 )

@@ -23,8 +23,8 @@ def test_one_row_serves_every_frame(tmp_path):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("frame,fx,fy,cx\n0,1,1,1\n", "missing column"),
-    ("frame,fx,fy,cx,cy,skew\n", r"no rows after the header \(line 1\)"),
+    ("frame,fx,fy,cx\n0,1,1,1\n", r"line 1: missing column\(s\) cy, skew"),
+    ("frame,fx,fy,cx,cy,skew\n", r"line 1: no rows after the header$"),
     ("frame,fx,fy,cx,cy,skew\n0,800,0,320,240,0\n", "line 2: fx and fy must be > 0"),
     ("frame,fx,fy,cx,cy,skew\n0,800,abc,320,240,0\n", "line 2: fy must be a number"),
     ("frame,fx,fy,cx,cy,skew\n0,800,800,nan,240,0\n", "line 2: cx must be finite"),

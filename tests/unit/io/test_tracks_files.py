@@ -67,12 +67,12 @@ def test_npz_uses_status_1_and_sorts_track_ids(tmp_path):
         ("frame,track_id,x,y\n0,1,2,3\n0,2,nan,3\n", "line 3: x must be finite"),
         ("frame,track_id,x,y\n0,1,2,3\n0,2,inf,3\n", "line 3: x must be finite"),
         ("frame,track_id,x,y\n0,1,2,3\n0.5,2,1,3\n", "line 3: frame must be an integer"),
-        ("frame,track_id,x,y\n0,1,2,3\n0,1,2,3\n", "lines 2 and 3"),
+        ("frame,track_id,x,y\n0,1,2,3\n0,1,2,3\n", "bad.csv: lines 2 and 3: frame 0, track_id 1 given twice"),
         ("frame,track_id,x,y\n0,1,2\n", "line 2: 3 fields, the header has 4"),
         (TRACKER_HEADER + "0,1,2,3,0,0,1,1,flying\n", "line 2: status must be"),
         (TRACKER_HEADER + "0,1,2,3,0,0,0,1,measured\n", "line 2: std_x and std_y must be > 0"),
         ("", "empty file"),
-        ("frame,track_id,x,y\n", r"no rows after the header \(line 1\)"),
+        ("frame,track_id,x,y\n", r"line 1: no rows after the header$"),
     ],
 )
 def test_malformed_csv(tmp_path, text, message):

@@ -56,11 +56,11 @@ def test_points_csv(tmp_path):
     np.testing.assert_array_equal(points, [[2, 1], [4, 3]])
     assert ids is None
     p.write_text("x,y\n1,2\n3,oops\n")
-    with pytest.raises(InvalidInputError, match=r"p\.csv row 3: x and y must be numbers"):
+    with pytest.raises(InvalidInputError, match=r"p\.csv: line 3: x and y must be numbers"):
         read_points_csv(p)
     p.write_text("u,v\n1,2\n")
-    with pytest.raises(InvalidInputError, match="missing column"):
+    with pytest.raises(InvalidInputError, match=r"p\.csv: line 1: missing column\(s\) x, y; got u,v$"):
         read_points_csv(p)
     p.write_text("x,y,track_id\n1,2,4\n3,4,4\n")
-    with pytest.raises(InvalidInputError, match="row 3: track_id 4 repeats row 2"):
+    with pytest.raises(InvalidInputError, match=r"p\.csv: line 3: track_id 4 repeats line 2$"):
         read_points_csv(p)

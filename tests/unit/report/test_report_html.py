@@ -113,7 +113,7 @@ def test_frames_without_tracks_show_the_raw_strip(tmp_path):
     "content, expected",
     [
         (None, r"summary\.json: not found"),
-        ("{not json", r"summary\.json: is not valid JSON \(line 1"),
+        ("{not json", r"summary\.json: line 1: not valid JSON \(column "),
         ("[1, 2]", r"summary\.json: expected a JSON object"),
         ('{"command": "demo"}', r"summary\.json: schema_version None is not 3"),
         (_SUMMARY[:-1] + ', "tracking": [1]}', r"summary\.json\.tracking: expected an object"),
@@ -161,10 +161,10 @@ def test_broken_optional_file_raises_and_keeps_the_old_report(tmp_path):
 def test_bad_csv_row_names_file_and_line(tmp_path):
     run = write_fake_run(tmp_path / "run")
     (run / "structure.csv").write_text("track_id,X,Y,Z\n0,1,2,3\n1,1,oops,3\n")
-    with pytest.raises(InvalidInputError, match=r"structure\.csv, line 3: column 'Y' must be a number"):
+    with pytest.raises(InvalidInputError, match=r"structure\.csv: line 3: column 'Y' must be a number"):
         load_run(run)
     (run / "structure.csv").write_text("id,X,Y\n")
-    with pytest.raises(InvalidInputError, match=r"structure\.csv: missing column\(s\) track_id, Z"):
+    with pytest.raises(InvalidInputError, match=r"structure\.csv: line 1: missing column\(s\) track_id, Z"):
         load_run(run)
 
 
