@@ -60,6 +60,7 @@ def where(path: str | os.PathLike[str], *lines: int) -> str:
         return f"{text}: line {int(lines[0])}"
     return f"{text}: lines {', '.join(str(int(n)) for n in lines[:-1])} and {int(lines[-1])}"
 
+
 _NEWLINE = re.compile(r"\r\n|\r|\n")
 
 
