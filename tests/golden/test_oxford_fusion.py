@@ -19,7 +19,6 @@ from kalmansfm.structure.point_fusion import fuse
 from _oxford import DATASETS, convert
 
 
-
 @pytest.fixture(scope="module", params=DATASETS)
 def dataset(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)

@@ -25,7 +25,6 @@ from kalmansfm.structure.perspective import reconstruct_perspective
 from _oxford import DATA, DATASETS, convert
 
 
-
 @pytest.fixture(scope="module", params=DATASETS)
 def run(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)

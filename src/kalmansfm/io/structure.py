@@ -193,7 +193,6 @@ def motion_csv(frames: np.ndarray, motion: np.ndarray, translation: np.ndarray) 
                                      for frame, values in zip(f[keep].tolist(), rows[keep].tolist())))
 
 
-
 @dataclass(frozen=True)
 class PointTable:
     """3D points keyed by track id (``structure.csv``, ``ground_truth_points.csv``): the rows with coordinates.

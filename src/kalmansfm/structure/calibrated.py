@@ -35,7 +35,6 @@ PERSPECTIVE_METHODS = ("batch", "recursive")
 DEFAULT_OUTLIER_THRESHOLD_PX = 4.0
 
 
-
 class FrameStatus(LabelledEnum):
     """Outcome for one frame; its ``label`` (``registered``, ``not_connected``, ``pose_failed``) is the word files use."""
 

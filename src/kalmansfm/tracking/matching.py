@@ -62,6 +62,7 @@ def well_posed_2x2(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndar
     det = a * c - b * b
     return det, det > WELL_POSED_RATIO * np.maximum(a + c, 1e-12) ** 2
 
+
 @dataclass(frozen=True)
 class PreparedFrame:
     """One grey frame made ready for many template searches.
