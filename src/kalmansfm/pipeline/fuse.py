@@ -16,7 +16,7 @@ from ..io.fusion import history_csv, rejected_csv
 from ..io.summary import FusionMetrics, RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
-from ..structure.point_fusion import FusedStructure, FusionSettings, fuse_with_settings
+from ..structure.point_fusion import FusedStructure, FusionSettings, fuse
 from ..structure.points import PointStatus, rms_std
 from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .stage import Stopwatch, stage_points, stage_summary
@@ -143,11 +143,11 @@ def run_fuse(
     log.info("fusing %d tracks over %d views (%s)", data.observations.shape[1], len(data.cameras), settings.method)
     with clock.step("fusion"):
         if scheduler is None and n_workers is None:
-            fused = fuse_with_settings(data.observations, data.cameras, settings)
+            fused = fuse(data.observations, data.cameras, settings=settings)
         else:
             with dask_client(scheduler, n_workers) as client:
-                fused = fuse_with_settings(data.observations, data.cameras, settings,
-                                           executor=ScatteringExecutor(client))
+                fused = fuse(data.observations, data.cameras, settings=settings,
+                             executor=ScatteringExecutor(client))
     summary = RunSummary(command="fuse", input=f"{tracks_path} with cameras {cameras_path}", source=source,
                          fusion=fusion_metrics(data, fused, settings), warnings=tuple(warnings))
     frames, ids = data.cameras.frames, data.track_ids

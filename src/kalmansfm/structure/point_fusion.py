@@ -98,7 +98,6 @@ __all__ = [
     "GatedUpdate",
     "PairTriangulations",
     "fuse",
-    "fuse_with_settings",
     "iterated_update",
     "pair_triangulations",
 ]
@@ -1020,13 +1019,14 @@ def _sum_squares(results: Iterable[_ChunkResult]) -> tuple[float, int, int]:
 def fuse(
     observations: object,
     cameras: CameraSet | object,
-    method: str = "recursive",
-    pixel_std: float | str = "auto",
-    outlier_probability: float = DEFAULT_OUTLIER_PROBABILITY,
-    history: bool = False,
+    method: str | None = None,
+    pixel_std: float | str | None = None,
+    outlier_probability: float | None = None,
+    history: bool | None = None,
     *,
-    chunk_points: int = DEFAULT_CHUNK_POINTS,
+    chunk_points: int | None = None,
     orientation: int | None = None,
+    settings: FusionSettings | None = None,
     executor: Any | None = None,
 ) -> FusedStructure:
     """Fuse each point's observations over many views with known cameras into a 3-D point and its covariance.
@@ -1037,25 +1037,28 @@ def fuse(
         Pixel positions (x = column, y = row) of N points in the V views of
         ``cameras``, in the same view order; NaN where a point is not seen.
     cameras : CameraSet or (V, 3, 4) projection matrices.
-    method : {"recursive", "batch", "pairs"}
+    method : {"recursive", "batch", "pairs"}, default "recursive"
         ``"recursive"``: the paper's Kalman fusion, view by view (inverse-depth
         state, iterated EKF updates); ``"batch"``: per-point maximum likelihood
         over all views (the reference); ``"pairs"``: the report's fusion of
         consecutive two-view triangulations (over-confident, no outlier test).
-    pixel_std : float > 0 or "auto"
-        Image noise σ in pixels; ``"auto"`` estimates it from the residuals with
-        2 degrees of freedom per observation minus 3 per point, after outlier
+    pixel_std : float > 0, "auto" or None, default "auto"
+        Image noise σ in pixels; ``"auto"`` (or None) estimates it from the residuals
+        with 2 degrees of freedom per observation minus 3 per point, after outlier
         rejection.
-    outlier_probability : float in (0, 1]
+    outlier_probability : float in (0, 1], default :data:`DEFAULT_OUTLIER_PROBABILITY`
         Observations beyond the χ² quantile of this probability are rejected
         (1 disables the test).
-    history : bool
+    history : bool, default False
         Also return every point's estimate after every view that observed it.
-    chunk_points : int
+    chunk_points : int, default :data:`DEFAULT_CHUNK_POINTS`
         Points processed together; bounds the memory.
     orientation : +1, -1 or None
         +1: points lie in front of the cameras (positive depth with P = λ K [R | t]);
         -1: a mirrored reconstruction; None: the sign most points agree on.
+    settings : FusionSettings, optional
+        All the options above at once (the defaults are :class:`FusionSettings`'s);
+        then none of them may be given as well.
     executor : object with a ``map(fn, items)`` method, optional
         Runs the chunks (a ``concurrent.futures.Executor``, or
         :class:`kalmansfm.pipeline.cluster.ScatteringExecutor` on Dask); by default
@@ -1070,7 +1073,8 @@ def fuse(
     Raises
     ------
     InvalidInputError
-        Bad shapes, infinite observations, invalid cameras or settings.
+        Bad shapes, infinite observations, invalid cameras or settings; ``settings``
+        given together with one of the options it holds.
     NotEnoughDataError
         Fewer than 2 cameras, or ``pixel_std="auto"`` without redundant observations.
 
@@ -1093,17 +1097,24 @@ def fuse(
     >>> bool(2.0 < nees.mean() < 4.5)
     True
     """
-    auto = isinstance(pixel_std, str)
-    if auto and pixel_std != "auto":
-        raise InvalidInputError(f"pixel_std must be a number (pixels) or 'auto'; got {pixel_std!r}")
-    settings = FusionSettings(method, None if auto else pixel_std, outlier_probability, history, chunk_points,
-                              orientation)
-    return fuse_with_settings(observations, cameras, settings, executor=executor)
+    options = {"method": method, "pixel_std": pixel_std, "outlier_probability": outlier_probability,
+               "history": history, "chunk_points": chunk_points, "orientation": orientation}
+    given = {name: value for name, value in options.items() if value is not None}
+    if settings is not None:
+        if given:
+            raise InvalidInputError(f"fuse: give {', '.join(given)} inside settings, not beside it "
+                                    "(settings would silently win)")
+    else:
+        if isinstance(given.get("pixel_std"), str):
+            if given["pixel_std"] != "auto":
+                raise InvalidInputError(f"pixel_std must be a number (pixels) or 'auto'; got {pixel_std!r}")
+            del given["pixel_std"]
+        settings = FusionSettings(**given)
+    return _fuse(observations, cameras, settings, executor)
 
 
-def fuse_with_settings(observations: object, cameras: CameraSet | object, settings: FusionSettings,
-                       executor: Any | None = None) -> FusedStructure:
-    """:func:`fuse` with its options given as one :class:`FusionSettings`."""
+def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSettings,
+          executor: Any | None) -> FusedStructure:
     cams, obs = _validate(observations, cameras)
     orientation = _orientation(cams, obs) if settings.orientation is None else settings.orientation
     geometry = _geometry(cams.matrices, orientation)

@@ -194,3 +194,15 @@ def test_the_iterated_update_reaches_the_map_estimate_and_the_gate_keeps_the_pri
     # a tight gate rejects them all and leaves the prior untouched
     tight = iterated_update(Q, prior, P, z + 1e3, pixel_std=1.0, gate=13.8)
     assert not tight.accepted.any() and np.array_equal(tight.states, prior) and np.array_equal(tight.covariances, P)
+
+
+def test_settings_are_the_same_options_and_a_keyword_beside_them_is_refused():
+    s = known_camera_scene(points=60, views=5, pixel_std=0.5, seed=4)
+    by_keywords = fuse(s.observations, s.cameras, method="batch", pixel_std=0.5, outlier_probability=0.99)
+    by_settings = fuse(s.observations, s.cameras, settings=FusionSettings("batch", 0.5, 0.99))
+    np.testing.assert_array_equal(by_keywords.points, by_settings.points)
+    np.testing.assert_array_equal(by_keywords.covariances, by_settings.covariances)
+    with pytest.raises(InvalidInputError, match="give method, history inside settings"):
+        fuse(s.observations, s.cameras, method="batch", history=True, settings=FusionSettings())
+    with pytest.raises(InvalidInputError, match="pixel_std must be a number .* or 'auto'"):
+        fuse(s.observations, s.cameras, pixel_std="estimate")
