@@ -34,15 +34,15 @@ import numpy as np
 
 from kalmansfm.io.oxford import read_oxford
 from kalmansfm.scenes.perspective import perspective_scene
-from kalmansfm.structure.bundle import (
+from kalmansfm.structure.perspective.bundle import (
     ObservationList,
     bundle_adjust,
     free_network_covariances,
     reprojection_residuals,
 )
-from kalmansfm.structure.perspective import reconstruct_perspective
-from kalmansfm.structure.pinhole import decompose_projection
-from kalmansfm.structure.rotation import rotation_exp
+from kalmansfm.structure.perspective.reconstruct import reconstruct_perspective
+from kalmansfm.structure.geometry.pinhole import decompose_projection
+from kalmansfm.structure.geometry.rotation import rotation_exp
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
@@ -100,7 +100,7 @@ def run_scipy(problem):
     R0, C0, X0 = problem["start"]
     obs, K = problem["obs"], problem["K"]
     n, m, N = len(R0), len(X0), len(obs)
-    from kalmansfm.structure.bundle import _projection_matrices, _residuals
+    from kalmansfm.structure.perspective.bundle import _projection_matrices, _residuals
 
     kz = _projection_matrices(K)
 

@@ -118,9 +118,9 @@ def _status_kb(field: str) -> float:
 # (the names of commit f7ed7b8 first, then those of the streamed path), so that the same command
 # measures the code before and after issue 17.
 STEPS = {
-    "kalmansfm.structure.factorization": ("_validate", "_centred_measurement_matrix", "truncated_svd",
+    "kalmansfm.structure.affine.factorization": ("_validate", "_centred_measurement_matrix", "truncated_svd",
                                           "metric_upgrade", "_reprojection_residuals"),
-    "kalmansfm.structure._measurement": ("_start", "_first_pass", "_round_trip", "_projection_pass"),
+    "kalmansfm.structure.affine._measurement": ("_start", "_first_pass", "_round_trip", "_projection_pass"),
 }
 
 

@@ -40,7 +40,7 @@ import numpy as np  # noqa: E402
 
 from kalmansfm.pipeline.cluster import ScatteringExecutor, dask_client  # noqa: E402
 from kalmansfm.scenes.known_cameras import known_camera_scene  # noqa: E402
-from kalmansfm.structure.point_fusion import fuse  # noqa: E402
+from kalmansfm.structure.fusion.point_fusion import fuse  # noqa: E402
 
 
 def load() -> str:
@@ -152,7 +152,7 @@ def dask_scaling(points: int, chunks: list[int]) -> None:
 
 
 def reference_chunk(points: int) -> int:
-    from kalmansfm.structure.point_fusion import DEFAULT_CHUNK_POINTS
+    from kalmansfm.structure.fusion.point_fusion import DEFAULT_CHUNK_POINTS
 
     return min(points, DEFAULT_CHUNK_POINTS)
 

@@ -27,7 +27,7 @@ from scipy import stats
 
 from kalmansfm.io.oxford import read_oxford
 from kalmansfm.scenes.known_cameras import known_camera_scene
-from kalmansfm.structure.point_fusion import FUSION_METHODS, fuse
+from kalmansfm.structure.fusion.point_fusion import FUSION_METHODS, fuse
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"

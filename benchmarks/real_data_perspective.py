@@ -35,10 +35,10 @@ from scipy.stats import chi2
 from kalmansfm.errors import NotEnoughDataError
 from kalmansfm.io.oxford import read_oxford
 from kalmansfm.scenes.perspective import perspective_scene
-from kalmansfm.structure.alignment import align_similarity
-from kalmansfm.structure.bundle import compare_in_gauge
-from kalmansfm.structure.perspective import reconstruct_perspective
-from kalmansfm.structure.pinhole import decompose_projection
+from kalmansfm.structure.geometry.alignment import align_similarity
+from kalmansfm.structure.perspective.bundle import compare_in_gauge
+from kalmansfm.structure.perspective.reconstruct import reconstruct_perspective
+from kalmansfm.structure.geometry.pinhole import decompose_projection
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"

@@ -133,14 +133,14 @@ def test_the_check_catches_upward_and_sideways_imports():
         "kalmansfm.io.ground_truth": {"kalmansfm.scenes.polyhedron"},
         "kalmansfm.scenes.fusion_tasks": {"kalmansfm.report.tables"},
         "kalmansfm.structure.consistency": {"kalmansfm.experiments.fusion_tasks"},
-        "kalmansfm.tracking.smoothing": {"kalmansfm.structure.factorization"},
+        "kalmansfm.tracking.smoothing": {"kalmansfm.structure.affine.factorization"},
         "kalmansfm.report.html": {"kalmansfm.io.run_folder", "kalmansfm.errors"},
     }
     assert violations(graph) == [
         "kalmansfm.io.ground_truth (layer 4) imports kalmansfm.scenes.polyhedron (layer 5)",
         "kalmansfm.scenes.fusion_tasks (layer 5) imports kalmansfm.report.tables (layer 6)",
         "kalmansfm.structure.consistency (layer 3) imports kalmansfm.experiments.fusion_tasks (layer 5)",
-        "kalmansfm.tracking.smoothing (layer 3) imports kalmansfm.structure.factorization (layer 3)",
+        "kalmansfm.tracking.smoothing (layer 3) imports kalmansfm.structure.affine.factorization (layer 3)",
         "kalmansfm.tracking.tracker (layer 3) imports kalmansfm.io.frames (layer 4)",
     ]
 

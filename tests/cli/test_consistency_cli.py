@@ -97,7 +97,7 @@ def test_task7_options_reject_unknown_method():
 def test_task7_default_method_is_one_constant_shown_by_help(main, capsys):
     from kalmansfm.experiments.consistency import run_consistency, task7_consistency
     from kalmansfm.experiments.tables import fusion_table as table_of
-    from kalmansfm.structure.landmark import TASK7_DEFAULT_METHOD
+    from kalmansfm.structure.fusion.landmark import TASK7_DEFAULT_METHOD
 
     with pytest.raises(SystemExit):
         main(["consistency", "--help"])

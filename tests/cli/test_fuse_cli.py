@@ -14,7 +14,7 @@ from kalmansfm.io.structure import STRUCTURE_COLUMNS, read_points_table
 from kalmansfm.io.tracks import observations_csv
 from kalmansfm.report import build_report
 from kalmansfm.scenes.known_cameras import known_camera_scene
-from kalmansfm.structure.pinhole import CameraSet
+from kalmansfm.structure.geometry.pinhole import CameraSet
 
 
 @pytest.fixture

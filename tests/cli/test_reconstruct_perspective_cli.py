@@ -12,7 +12,7 @@ from kalmansfm.io.tracks import observations_csv
 from kalmansfm.pipeline import run_reconstruct
 from kalmansfm.report import build_report
 from kalmansfm.scenes.perspective import perspective_scene
-from kalmansfm.structure.alignment import align_similarity
+from kalmansfm.structure.geometry.alignment import align_similarity
 from kalmansfm.structure.points import rms_std
 
 

@@ -23,7 +23,7 @@ from kalmansfm.io.intrinsics import intrinsics_csv
 from kalmansfm.io.tracks import observations_csv
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.scenes.perspective import perspective_scene
-from kalmansfm.structure.pinhole import CameraSet
+from kalmansfm.structure.geometry.pinhole import CameraSet
 
 ROOT = Path(__file__).resolve().parents[2]
 SRC = ROOT / "src"

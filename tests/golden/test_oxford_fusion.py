@@ -14,7 +14,7 @@ from scipy import stats
 
 from kalmansfm.io.cameras import match_cameras, read_cameras
 from kalmansfm.io.tracks import read_tracks
-from kalmansfm.structure.point_fusion import fuse
+from kalmansfm.structure.fusion.point_fusion import fuse
 
 from _oxford import DATASETS, convert
 

@@ -18,9 +18,9 @@ import pytest
 from kalmansfm.io.intrinsics import intrinsics_csv, read_intrinsics
 from kalmansfm.io.oxford import read_oxford
 from kalmansfm.io.tracks import read_tracks
-from kalmansfm.structure.alignment import align_similarity
-from kalmansfm.structure.pinhole import decompose_projection
-from kalmansfm.structure.perspective import reconstruct_perspective
+from kalmansfm.structure.geometry.alignment import align_similarity
+from kalmansfm.structure.geometry.pinhole import decompose_projection
+from kalmansfm.structure.perspective.reconstruct import reconstruct_perspective
 
 from _oxford import DATA, DATASETS, convert
 

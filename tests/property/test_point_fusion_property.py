@@ -10,8 +10,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kalmansfm.structure.pinhole import CameraSet, project_points
-from kalmansfm.structure.point_fusion import fuse
+from kalmansfm.structure.geometry.pinhole import CameraSet, project_points
+from kalmansfm.structure.fusion.point_fusion import fuse
 
 
 def look_at(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:

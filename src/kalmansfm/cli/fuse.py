@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..pipeline import run_fuse
 from ..pipeline.cluster import check_cluster
-from ..structure.point_fusion import FUSION_METHODS, FusionSettings
+from ..structure.fusion.point_fusion import FUSION_METHODS, FusionSettings
 from ._options import print_warnings
 
 _DEFAULTS = FusionSettings()

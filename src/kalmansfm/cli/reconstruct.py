@@ -11,8 +11,8 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..pipeline import run_reconstruct
 from ..pipeline.perspective import CAMERA_MODELS
-from ..structure.factorization import DEFAULT_MAX_ITERATIONS
-from ..structure.perspective import PERSPECTIVE_METHODS, PerspectiveSettings
+from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
+from ..structure.perspective.reconstruct import PERSPECTIVE_METHODS, PerspectiveSettings
 from ._options import as_typed, print_warnings
 
 

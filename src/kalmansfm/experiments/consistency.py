@@ -19,7 +19,7 @@ first iteration from which every later one is inside its interval
 
 Experiments: Task 2 (one distance, truth 40 m, Table 2's measurement standard
 deviations, Kalman fusion) and Task 7 (a landmark from a moving camera, methods
-``pairs`` and ``batch``, see :mod:`kalmansfm.structure.landmark`).
+``pairs`` and ``batch``, see :mod:`kalmansfm.structure.fusion.landmark`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from scipy import stats
 from ..errors import InvalidInputError
 from .._validation import check_count
 from ..estimation.fusion import fuse_recursive
-from ..structure.landmark import TASK7_DEFAULT_METHOD, check_method, estimate_landmarks
-from ..structure.triangulation import check_focal
+from ..structure.fusion.landmark import TASK7_DEFAULT_METHOD, check_method, estimate_landmarks
+from ..structure.geometry.triangulation import check_focal
 from .fusion_tasks import load_task
 from .moving_camera import report_path
 from .task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD, N_IMAGES, check_pixel_noise, simulate_observations
@@ -324,7 +324,7 @@ def run_consistency(
     """Dispatch to :func:`task2_consistency` or :func:`task7_consistency`.
 
     ``method`` None is Task 2's Kalman filter, and for Task 7
-    :data:`~kalmansfm.structure.landmark.TASK7_DEFAULT_METHOD` (``pairs``, the report's scheme).
+    :data:`~kalmansfm.structure.fusion.landmark.TASK7_DEFAULT_METHOD` (``pairs``, the report's scheme).
     """
     if task == 2:
         if method not in (None, "kalman"):

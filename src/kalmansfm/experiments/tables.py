@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..errors import InvalidInputError
 from .fusion_tasks import FusionTable, available_tasks, run_task
-from ..structure.landmark import TASK7_DEFAULT_METHOD
+from ..structure.fusion.landmark import TASK7_DEFAULT_METHOD
 from .task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD, task7_table
 
 __all__ = ["SIMULATED_TASK", "fusion_table"]

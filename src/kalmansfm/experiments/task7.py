@@ -19,8 +19,8 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_positive
-from ..structure.landmark import TASK7_DEFAULT_METHOD, check_method, estimate_landmarks, project
-from ..structure.triangulation import check_focal
+from ..structure.fusion.landmark import TASK7_DEFAULT_METHOD, check_method, estimate_landmarks, project
+from ..structure.geometry.triangulation import check_focal
 from .fusion_tasks import FusionTable
 from .moving_camera import report_path
 

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
-from ..structure.pinhole import CameraSet, intrinsic_matrices
+from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices
 from ._csv import csv_text, number, read_rows, where
 from .tracks import _floats, _indices
 
@@ -197,7 +197,7 @@ def pose_cameras_csv(frames: object, intrinsics: object, rotations: object, tran
 
 @dataclass(frozen=True)
 class CameraObservations:
-    """Track positions arranged by camera: the input of :func:`~kalmansfm.structure.point_fusion.fuse`.
+    """Track positions arranged by camera: the input of :func:`~kalmansfm.structure.fusion.point_fusion.fuse`.
 
     Attributes
     ----------

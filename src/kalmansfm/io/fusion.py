@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..structure.point_fusion import FusedStructure
+from ..structure.fusion.point_fusion import FusedStructure
 from ._csv import csv_text, number
 from .structure import COVARIANCE_COLUMNS
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from .._validation import check_positive
 from ..errors import InvalidInputError
-from ..structure.pinhole import intrinsic_matrices
+from ..structure.geometry.pinhole import intrinsic_matrices
 from ._csv import number, read_rows, where
 from .tracks import _floats, _indices
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..structure.pinhole import CameraSet
+from ..structure.geometry.pinhole import CameraSet
 from ._csv import where
 
 __all__ = ["OxfordDataset", "read_oxford"]

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..structure.pinhole import CameraSet
+from ..structure.geometry.pinhole import CameraSet
 from ..tracking.tracks import Tracks
 from ._csv import read_rows, where
 from .cameras import read_cameras

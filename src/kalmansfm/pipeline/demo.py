@@ -24,7 +24,7 @@ from ..report.html import build_report
 from ..scenes import DEFAULT_SCENE_FRAMES, DEFAULT_SCENE_SEED, Scene, render_scene
 from ..scenes.files import scene_description, stage_ground_truth
 from ..structure import PointUncertainty, Reconstruction
-from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
+from ..structure.perspective.reconstruct import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
 from ..tracking import TrackerSettings, Tracks, smooth_tracks, track
 from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, structure_uncertainty, tracking_metrics
 from .perspective import perspective_metrics, stage_perspective
@@ -141,7 +141,7 @@ def run_demo(
     progress : progress bars on stderr.
     command : recorded in ``summary.json``.
     camera : ``"affine"`` (factorization) or ``"perspective"``: calibrated reconstruction
-        (:func:`~kalmansfm.structure.perspective.reconstruct_perspective`) of the measured,
+        (:func:`~kalmansfm.structure.perspective.reconstruct.reconstruct_perspective`) of the measured,
         unsmoothed tracks with the focal length ``focal`` (pixels) and the principal point at the
         image centre; needs ``input``.
     perspective : its settings.

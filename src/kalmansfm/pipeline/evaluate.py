@@ -13,8 +13,8 @@ import numpy as np
 from ..io.ground_truth import GroundTruth
 from ..io.summary import Similarity, StructureMetrics, TrackingMetrics, TrackMetrics, TruthComparison
 from ..structure import PointUncertainty, Reconstruction, align_similarity, factorize, point_uncertainty
-from ..structure.cameras import camera_rotation_matrices, rotation_angle_deg
-from ..structure.factorization import DEFAULT_MAX_ITERATIONS
+from ..structure.geometry.orthographic import camera_rotation_matrices, rotation_angle_deg
+from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
 from ..tracking.tracks import LOST, PREDICTED, Tracks
 
 __all__ = ["compare_with_truth", "factorize_tracks", "structure_metrics", "structure_uncertainty", "tracking_metrics"]

@@ -16,7 +16,7 @@ from ..io.fusion import history_csv, rejected_csv
 from ..io.summary import FusionMetrics, RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..report.figures import fusion_convergence_figure
-from ..structure.point_fusion import FusedStructure, FusionSettings, fuse
+from ..structure.fusion.point_fusion import FusedStructure, FusionSettings, fuse
 from ..structure.points import PointStatus, rms_std
 from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .stage import Stopwatch, stage_points, stage_summary
@@ -102,7 +102,7 @@ def run_fuse(
         camera are skipped with one warning.
     out_dir : the run folder: new, empty or an earlier run, replaced whole when this run succeeds
         (:func:`~kalmansfm.io.output_directory`).
-    settings : :class:`~kalmansfm.structure.point_fusion.FusionSettings` (method, pixel noise,
+    settings : :class:`~kalmansfm.structure.fusion.point_fusion.FusionSettings` (method, pixel noise,
         outlier probability, chunk size); the history is always kept (history.csv).
     scheduler, n_workers : fuse the chunks on Dask — an existing scheduler's address, or a
         local cluster of ``n_workers`` processes; neither: in this process.

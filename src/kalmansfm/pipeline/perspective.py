@@ -15,7 +15,7 @@ from ..io.intrinsics import intrinsics_from_focal, read_intrinsics
 from ..io.cameras import pose_cameras_csv
 from ..io.summary import PerspectiveMetrics
 from ..report.figures import camera_path_figure
-from ..structure.perspective import (
+from ..structure.perspective.reconstruct import (
     COVARIANCE_GAUGE,
     PerspectiveReconstruction,
     PerspectiveSettings,

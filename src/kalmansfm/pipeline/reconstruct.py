@@ -2,7 +2,7 @@
 
 Three camera models: ``affine`` (the seed's orthographic factorization, the default),
 ``perspective`` (calibrated reconstruction with unknown motion: bundle adjustment or the
-report's recursive fusion, :func:`~kalmansfm.structure.perspective.reconstruct_perspective`)
+report's recursive fusion, :func:`~kalmansfm.structure.perspective.reconstruct.reconstruct_perspective`)
 and ``auto``, which runs both and keeps the perspective model when its reprojection RMS
 over its inliers is at most the affine model's over all observations (and the affine one
 when the perspective reconstruction is impossible, e.g. without parallax).
@@ -22,8 +22,8 @@ from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..structure import PointUncertainty, Reconstruction
-from ..structure.factorization import DEFAULT_MAX_ITERATIONS
-from ..structure.perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
+from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
+from ..structure.perspective.reconstruct import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
 from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, structure_metrics, structure_uncertainty
 from .perspective import CAMERA_MODELS, perspective_metrics, resolve_intrinsics, stage_perspective
@@ -129,7 +129,7 @@ def run_reconstruct(
     intrinsics : ``K.csv`` (:mod:`kalmansfm.io.intrinsics`), for perspective and auto …
     focal : … or the focal length in pixels, principal point at the image centre; the image
         size is ``image_size`` (width, height) or the one recorded in the tracks file.
-    perspective : :class:`~kalmansfm.structure.perspective.PerspectiveSettings` (method,
+    perspective : :class:`~kalmansfm.structure.perspective.reconstruct.PerspectiveSettings` (method,
         outlier threshold, …).
     weighted : factorization: weight observations by 1 / σ² when the file has standard deviations.
     smooth : see :func:`read_tracks_for_factorization`; the perspective model reads the tracks

@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from ..io.structure import CameraMotion  # noqa: E402
-from ..structure.cameras import camera_rotation_matrices  # noqa: E402
+from ..structure.geometry.orthographic import camera_rotation_matrices  # noqa: E402
 from ..tracking.tracks import INITIALISING, Tracks, TrackStatus  # noqa: E402
 from .drawing import track_colors  # noqa: E402
 

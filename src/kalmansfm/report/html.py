@@ -30,7 +30,7 @@ from ..io.records import to_json
 from ..io.run_folder import RunFolder, load_run
 from ..io.structure import PointTable
 from ..io.summary import SUMMARY_FILE, RunSummary
-from ..structure.cameras import camera_rotation_matrices
+from ..structure.geometry.orthographic import camera_rotation_matrices
 from ..structure.points import rms_std
 from . import figures
 from ._assets import CSS, ERROR_TRAP_JS, JS

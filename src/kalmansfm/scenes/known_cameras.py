@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_count, check_positive
-from ..structure.pinhole import CameraSet, intrinsic_matrices, project_points
+from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices, project_points
 from ._arc import arc_centres, look_at, mismatches
 
 __all__ = ["KnownCameraScene", "known_camera_scene"]

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_count, check_positive
-from ..structure.pinhole import intrinsic_matrices
+from ..structure.geometry.pinhole import intrinsic_matrices
 from ._arc import arc_centres, look_at, mismatches
 
 __all__ = ["PerspectiveScene", "perspective_scene"]

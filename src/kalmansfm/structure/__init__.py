@@ -4,16 +4,16 @@ and calibrated reconstruction with unknown motion (bundle adjustment).
 Nothing here knows about images or tracks files; it works on arrays of positions.
 """
 
-from .alignment import Alignment, align_affine, align_similarity
-from .factorization import Reconstruction, factorize, metric_upgrade
-from .landmark import LandmarkEstimates, estimate_landmarks
-from .lowrank import TruncatedSVD, subspace_angle, truncated_svd
-from .perspective import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
-from .pinhole import CameraSet, decompose_projection, project_points, triangulate_points
-from .point_fusion import FusedStructure, FusionHistory, FusionSettings, fuse, pair_triangulations
+from .geometry.alignment import Alignment, align_affine, align_similarity
+from .affine.factorization import Reconstruction, factorize, metric_upgrade
+from .fusion.landmark import LandmarkEstimates, estimate_landmarks
+from .affine.lowrank import TruncatedSVD, subspace_angle, truncated_svd
+from .perspective.reconstruct import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
+from .geometry.pinhole import CameraSet, decompose_projection, project_points, triangulate_points
+from .fusion.point_fusion import FusedStructure, FusionHistory, FusionSettings, fuse, pair_triangulations
 from .points import PointStatus, rms_std
-from .triangulation import TriangulationResult, triangulate_midpoint
-from .uncertainty import PointUncertainty, point_uncertainty
+from .geometry.triangulation import TriangulationResult, triangulate_midpoint
+from .affine.uncertainty import PointUncertainty, point_uncertainty
 
 __all__ = [
     "Alignment",

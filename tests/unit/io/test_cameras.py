@@ -14,7 +14,7 @@ from kalmansfm.io.cameras import (
     pose_cameras_csv,
     read_cameras,
 )
-from kalmansfm.structure.pinhole import CameraSet
+from kalmansfm.structure.geometry.pinhole import CameraSet
 
 R = Rotation.from_euler("xyz", [0.1, -0.2, 0.3]).as_matrix()
 POSE_ROW = [7, 800.0, 780.0, 320.0, 240.0, 0.5, *R.ravel(), 0.1, -0.2, 4.0]

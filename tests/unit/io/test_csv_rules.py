@@ -36,7 +36,7 @@ from kalmansfm.io.intrinsics import intrinsics_csv, read_intrinsics
 from kalmansfm.io.run_folder import _read_csv_table
 from kalmansfm.io.structure import motion_csv, read_motion_csv, read_points_table, structure_csv
 from kalmansfm.io.tracks import observations_csv, read_points_csv, read_tracks, tracks_to_csv
-from kalmansfm.structure.pinhole import CameraSet
+from kalmansfm.structure.geometry.pinhole import CameraSet
 from kalmansfm.tracking.tracks import Tracks
 
 RNG = np.random.default_rng(7)

@@ -8,7 +8,7 @@ import pytest
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.io.oxford import read_oxford
 from kalmansfm.io.tracks import observations_csv, read_tracks
-from kalmansfm.structure.pinhole import project_points
+from kalmansfm.structure.geometry.pinhole import project_points
 
 DATA = Path(__file__).resolve().parents[4] / "shared" / "data"
 

@@ -7,11 +7,11 @@ from hypothesis import strategies as st
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-import kalmansfm.structure.bundle as bundle_module
+import kalmansfm.structure.perspective.bundle as bundle_module
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.scenes.perspective import perspective_scene
-from kalmansfm.structure.alignment import align_similarity
-from kalmansfm.structure.bundle import (
+from kalmansfm.structure.geometry.alignment import align_similarity
+from kalmansfm.structure.perspective.bundle import (
     ObservationList,
     _residuals,
     _similarity_directions,
@@ -20,7 +20,7 @@ from kalmansfm.structure.bundle import (
     free_network_covariances,
     reprojection_residuals,
 )
-from kalmansfm.structure.rotation import rotation_exp, rotation_log
+from kalmansfm.structure.geometry.rotation import rotation_exp, rotation_log
 
 
 def small_problem(seed=0, frames=5, points=40, pixel_std=0.5, skew=0.0, min_track_length=2):

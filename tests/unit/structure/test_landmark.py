@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from kalmansfm import InvalidInputError, NotEnoughDataError, fuse_recursive
 from kalmansfm.experiments.moving_camera import report_path
-from kalmansfm.structure.landmark import estimate_landmarks, project
+from kalmansfm.structure.fusion.landmark import estimate_landmarks, project
 from kalmansfm.structure.points import PointStatus
 
 F = 500.0

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from kalmansfm import InvalidInputError
-from kalmansfm.structure import _measurement, factorization, factorize, subspace_angle
+from kalmansfm.structure import factorize, subspace_angle
+from kalmansfm.structure.affine import _measurement, factorization
 
 from factorization_scenes import orthographic_scene
 

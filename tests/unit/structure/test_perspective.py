@@ -7,8 +7,8 @@ from scipy.stats import chi2
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure import PointStatus
-from kalmansfm.structure.bundle import compare_in_gauge
-from kalmansfm.structure.perspective import (
+from kalmansfm.structure.perspective.bundle import compare_in_gauge
+from kalmansfm.structure.perspective.reconstruct import (
     FrameStatus,
     PerspectiveSettings,
     reconstruct_perspective,

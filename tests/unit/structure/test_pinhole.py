@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.structure import PointStatus
-from kalmansfm.structure.pinhole import (
+from kalmansfm.structure.geometry.pinhole import (
     CameraSet,
     camera_centres,
     decompose_projection,

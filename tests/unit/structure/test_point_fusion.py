@@ -8,12 +8,12 @@ from scipy import stats
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-import kalmansfm.structure.point_fusion as pf
+import kalmansfm.structure.fusion.point_fusion as pf
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus
-from kalmansfm.structure.pinhole import CameraSet, project_each, project_points
-from kalmansfm.structure.point_fusion import FusionSettings, fuse, iterated_update
+from kalmansfm.structure.geometry.pinhole import CameraSet, project_each, project_points
+from kalmansfm.structure.fusion.point_fusion import FusionSettings, fuse, iterated_update
 
 
 def nees(errors, covariances):

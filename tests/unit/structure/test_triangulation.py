@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from kalmansfm import InvalidInputError
 from kalmansfm.structure.points import PointStatus
-from kalmansfm.structure.triangulation import triangulate_midpoint
+from kalmansfm.structure.geometry.triangulation import triangulate_midpoint
 
 F = 500.0
 

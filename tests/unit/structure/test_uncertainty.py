@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.structure import PointStatus, align_affine, factorize, point_uncertainty
-from kalmansfm.structure.uncertainty import MAX_STD_RATIO, MIN_VIEWS
+from kalmansfm.structure.affine.uncertainty import MAX_STD_RATIO, MIN_VIEWS
 
 HOTEL = Path(__file__).resolve().parents[4] / "shared" / "data" / "cmu_hotel"
 CHI2_3_1SIGMA, CHI2_3_3SIGMA = 3.5267, 14.156  # χ²₃ quantiles of 0.6827 and 0.9973

@@ -13,7 +13,7 @@ per-point residuals of the rank-3 fit.
    in the pass's sums, and the caller takes the general path.
 2. *Round trips* (one read each): Z = Uᵀ W_c and Y = W_c Zᵀ = A U (A = W_c W_cᵀ) with the
    same column block of ``positions`` in cache for both. Rayleigh–Ritz on span(U) gives
-   the Ritz pairs and the Davis–Kahan bound of :mod:`~kalmansfm.structure.lowrank`. They
+   the Ritz pairs and the Davis–Kahan bound of :mod:`~kalmansfm.structure.affine.lowrank`. They
    stop when the next iterate, reduced to its k leading Ritz directions, is predicted to
    be within ``tol``.
 3. *Projection pass* (one read): with that k-column U fixed, Z = Uᵀ W_c, the residual
@@ -55,7 +55,7 @@ class StreamedRank:
     (F, 2) the frame centroids; ``residuals`` (F, P) the distance between each observed
     position and its rank-k fit (dtype of the input); ``residual_sum`` Σ of the squared
     entries of W_c − U diag(s) Vᵀ; ``extra_singular_values`` the Ritz estimate of σₖ₊₁;
-    ``angle_bound``/``certified`` as in :class:`~kalmansfm.structure.lowrank.TruncatedSVD`;
+    ``angle_bound``/``certified`` as in :class:`~kalmansfm.structure.affine.lowrank.TruncatedSVD`;
     ``passes`` the number of reads of the array.
     """
 

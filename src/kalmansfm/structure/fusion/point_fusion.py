@@ -71,10 +71,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from ..errors import InvalidInputError, NotEnoughDataError
-from .._validation import as_float_array, check_count, check_positive
-from ..estimation.kalman import kalman_update
-from .pinhole import (
+from ...errors import InvalidInputError, NotEnoughDataError
+from ..._validation import as_float_array, check_count, check_positive
+from ...estimation.kalman import kalman_update
+from ..geometry.pinhole import (
     CameraSet,
     _inverse3,
     _solve3,
@@ -85,8 +85,8 @@ from .pinhole import (
     refine_points,
     triangulate_points,
 )
-from .points import PointStatus
-from .triangulation import triangulate_midpoint
+from ..points import PointStatus
+from ..geometry.triangulation import triangulate_midpoint
 
 __all__ = [
     "DEFAULT_CHUNK_POINTS",
@@ -905,7 +905,7 @@ def pair_triangulations(observations: object, cameras: CameraSet | object, pixel
 
     Examples
     --------
-    >>> from kalmansfm.structure.pinhole import project_points
+    >>> from kalmansfm.structure.geometry.pinhole import project_points
     >>> cams = CameraSet.from_pose(np.diag([500.0, 500.0, 1.0]), np.stack([np.eye(3)] * 3),
     ...                            [[0.0, 0, 0], [-1.0, 0, 0], [-2.0, 0, 0]])
     >>> pairs = pair_triangulations(project_points(cams, [[0.5, 0.2, 10.0]]).pixels, cams)
@@ -1083,7 +1083,7 @@ def fuse(
     Three cameras along x, 50 points, noise 0.5 px:
 
     >>> import numpy as np
-    >>> from kalmansfm.structure.pinhole import CameraSet, project_points
+    >>> from kalmansfm.structure.geometry.pinhole import CameraSet, project_points
     >>> rng = np.random.default_rng(0)
     >>> K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
     >>> cams = CameraSet.from_pose(K, np.stack([np.eye(3)] * 3), [[0, 0, 0], [-0.5, 0, 0], [-1.0, 0, 0]])

@@ -1,6 +1,6 @@
 """How well each point of an affine (Tomasi–Kanade) reconstruction is known, and which ones to trust.
 
-Model (as in :mod:`~kalmansfm.structure.factorization`): x_fp = M_f S_p + t_f + e_fp, with
+Model (as in :mod:`~kalmansfm.structure.affine.factorization`): x_fp = M_f S_p + t_f + e_fp, with
 e_fp zero-mean noise of covariance σ² W_fp⁻¹ (W_fp = diag of the factorization's weights;
 the identity without weights).  Taking the recovered motion (M_f, t_f) as exact, the
 weighted least-squares point S_p from the frames f that observed it has the covariance
@@ -45,10 +45,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_float_array
-from ..errors import InvalidInputError
+from ..._validation import as_float_array
+from ...errors import InvalidInputError
 from .factorization import Reconstruction
-from .points import PointStatus
+from ..points import PointStatus
 
 __all__ = ["MAX_STD_RATIO", "MIN_VIEWS", "PointUncertainty", "point_uncertainty"]
 

@@ -10,7 +10,7 @@ Complete data, no weights (the report's algorithm):
 
 1. centre each frame: W = x − t with t_f the mean of frame f's points;
 2. rank-3 truncation W ≈ U′ D′ V′ᵀ (LAPACK for small W; for large W the
-   certified subspace iteration of :mod:`~kalmansfm.structure._measurement`, which
+   certified subspace iteration of :mod:`~kalmansfm.structure.affine._measurement`, which
    reads the (F, P, 2) array itself — W is never built, the centring happens inside
    its passes and its last pass also measures the residuals);
 3. affine factors R* = U′ D′^½ and S* = D′^½ V′ᵀ;
@@ -43,8 +43,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import InvalidInputError, NotEnoughDataError
-from .._validation import as_float_array, check_count
+from ...errors import InvalidInputError, NotEnoughDataError
+from ..._validation import as_float_array, check_count
 from .lowrank import truncated_svd
 
 __all__ = ["DEFAULT_MAX_ITERATIONS", "Reconstruction", "factorize", "metric_upgrade"]
@@ -284,7 +284,7 @@ class _AffineFit:
 def _streamed_closed_form(positions: object, weights: object, rng: object, notes: list[str]) -> _AffineFit | None:
     """The closed form straight from a large complete (F, P, 2) array, or None (general path).
 
-    W is never built: :func:`~kalmansfm.structure._measurement.streamed_rank` reads
+    W is never built: :func:`~kalmansfm.structure.affine._measurement.streamed_rank` reads
     ``positions`` three times (a float32 array stays float32 in memory; the sums are
     float64). Returns None for small input, weights, or as soon as a NaN or an infinity
     is met.

@@ -5,12 +5,12 @@ moves with known motion and tracks landmarks; the goal is each landmark's
 position in the current camera frame after every image, with an uncertainty
 one can trust.  Known motion is known cameras: image k is the camera
 P_k = diag(f, f, 1) [A_k | -c_k] with X_k = A_k X_0 - c_k, and every method is
-:func:`~kalmansfm.structure.point_fusion.fuse` with its history (the estimate
+:func:`~kalmansfm.structure.fusion.point_fusion.fuse` with its history (the estimate
 after every image), moved into camera frame k.
 
 ``method="pairs"`` (the report's scheme)
     Each consecutive pair of a landmark's observations is triangulated
-    (:func:`~kalmansfm.structure.triangulation.triangulate_midpoint`, eqs. 29-31),
+    (:func:`~kalmansfm.structure.geometry.triangulation.triangulate_midpoint`, eqs. 29-31),
     given its first-order covariance (eq. 34) and fused by the Kalman filter as a
     direct measurement — the same recursion as :func:`~kalmansfm.fuse_recursive`
     with the motion x_k = C_{k-1} x_{k-1} - b_{k-1} (eq. 23).  Consecutive pairs
@@ -28,7 +28,7 @@ after every image), moved into camera frame k.
 Every observation is used (no outlier test: the simulation has none).  Poses:
 ``rotations[k]`` and ``translations[k]`` (C_k, b_k) take a point's coordinates
 from camera frame k to camera frame k+1, X_{k+1} = C_k X_k - b_k.  Image
-coordinates follow :mod:`kalmansfm.structure.triangulation`: (x, y) =
+coordinates follow :mod:`kalmansfm.structure.geometry.triangulation`: (x, y) =
 (f X / Z, f Y / Z) from the principal point.
 """
 
@@ -38,11 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InvalidInputError, NotEnoughDataError
-from .._validation import as_float_array, check_positive
-from .pinhole import CameraSet
+from ...errors import InvalidInputError, NotEnoughDataError
+from ..._validation import as_float_array, check_positive
+from ..geometry.pinhole import CameraSet
 from .point_fusion import FUSION_METHODS, fuse, pair_triangulations
-from .triangulation import check_focal, check_motion
+from ..geometry.triangulation import check_focal, check_motion
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -165,7 +165,7 @@ def _to_frames(A: np.ndarray, c: np.ndarray, X: np.ndarray, P: np.ndarray) -> tu
 
 
 def check_method(method: str) -> str:
-    """``method`` if it is one of :data:`~kalmansfm.structure.point_fusion.FUSION_METHODS`.
+    """``method`` if it is one of :data:`~kalmansfm.structure.fusion.point_fusion.FUSION_METHODS`.
 
     Parameters
     ----------

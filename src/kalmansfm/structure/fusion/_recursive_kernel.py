@@ -1,6 +1,6 @@
 """Compiled (numba) kernel of the recursive structure fusion: one pass over a chunk of points.
 
-The same algorithm as the NumPy reference in :mod:`kalmansfm.structure.point_fusion`
+The same algorithm as the NumPy reference in :mod:`kalmansfm.structure.fusion.point_fusion`
 (``_recursive_states_numpy``), written per point: the NumPy version streams
 every per-point array through memory several times per view and per iterated
 update, this one keeps a point's 3-vector and 3 × 3 covariance in registers

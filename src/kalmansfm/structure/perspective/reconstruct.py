@@ -44,9 +44,9 @@ without parallax is refused with a message saying so.
 
 from __future__ import annotations
 
-from ..errors import InvalidInputError
+from ...errors import InvalidInputError
 from .bundle import single_threaded_blas
-from .calibrated import (
+from .settings import (
     COVARIANCE_GAUGE,
     DEFAULT_OUTLIER_THRESHOLD_PX,
     PERSPECTIVE_METHODS,

@@ -40,9 +40,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InvalidInputError
-from .._validation import as_float_array, check_finite, check_positive
-from .points import PointStatus
+from ...errors import InvalidInputError
+from ..._validation import as_float_array, check_finite, check_positive
+from ..points import PointStatus
 
 __all__ = [
     "TriangulationResult",

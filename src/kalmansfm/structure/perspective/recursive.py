@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import NotEnoughDataError
+from ...errors import NotEnoughDataError
 from .bundle import (
     ObservationList,
     _projection_matrices,
@@ -53,7 +53,7 @@ from .bundle import (
     reprojection_residuals,
     similarity_free_covariances,
 )
-from .calibrated import (
+from .settings import (
     FrameStatus,
     PerspectiveReconstruction,
     PerspectiveSettings,
@@ -61,9 +61,9 @@ from .calibrated import (
     residual_rms_per_point,
 )
 from .incremental import relative_pose
-from .point_fusion import iterated_update
-from .points import PointStatus
-from .rotation import cross_matrix
+from ..fusion.point_fusion import iterated_update
+from ..points import PointStatus
+from ..geometry.rotation import cross_matrix
 
 __all__ = ["reconstruct_recursive"]
 

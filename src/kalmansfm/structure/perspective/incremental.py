@@ -11,18 +11,18 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..errors import NotEnoughDataError
+from ...errors import NotEnoughDataError
 from .bundle import ObservationList, bundle_adjust, free_network_covariances, reprojection_residuals
-from .calibrated import (
+from .settings import (
     FrameStatus,
     PerspectiveReconstruction,
     PerspectiveSettings,
     frame_runs,
     residual_rms_per_point,
 )
-from .pinhole import CameraSet, camera_centres, triangulate_points
-from .point_fusion import fuse
-from .points import PointStatus
+from ..geometry.pinhole import CameraSet, camera_centres, triangulate_points
+from ..fusion.point_fusion import fuse
+from ..points import PointStatus
 
 __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
 

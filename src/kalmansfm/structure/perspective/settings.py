@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ..errors import InvalidInputError, NotEnoughDataError
-from .._validation import LabelledEnum, as_float_array, check_count, check_positive
-from .pinhole import camera_centres
-from .points import PointStatus
+from ...errors import InvalidInputError, NotEnoughDataError
+from ..._validation import LabelledEnum, as_float_array, check_count, check_positive
+from ..geometry.pinhole import camera_centres
+from ..points import PointStatus
 
 __all__ = [
     "COVARIANCE_GAUGE",

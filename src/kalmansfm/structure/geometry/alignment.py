@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InvalidInputError, NotEnoughDataError
+from ...errors import InvalidInputError, NotEnoughDataError
 
 __all__ = ["Alignment", "align_similarity", "align_affine"]
 

@@ -53,11 +53,11 @@ import scipy.linalg
 import scipy.sparse
 from threadpoolctl import threadpool_limits
 
-from ..errors import InvalidInputError
-from .._validation import as_float_array, check_positive
-from .alignment import Alignment, align_similarity
-from .pinhole import project_each
-from .rotation import cross_matrix, rotation_exp, rotation_log
+from ...errors import InvalidInputError
+from ..._validation import as_float_array, check_positive
+from ..geometry.alignment import Alignment, align_similarity
+from ..geometry.pinhole import project_each
+from ..geometry.rotation import cross_matrix, rotation_exp, rotation_log
 
 __all__ = [
     "BUNDLE_LOSSES",
@@ -354,7 +354,7 @@ def bundle_adjust(rotations: object, centres: object, points: object, observatio
     --------
     Four cameras around 30 points, noise-free observations, cameras disturbed:
 
-    >>> from kalmansfm.structure.rotation import rotation_exp
+    >>> from kalmansfm.structure.geometry.rotation import rotation_exp
     >>> rng = np.random.default_rng(1)
     >>> X = rng.uniform(-1, 1, (30, 3))
     >>> C = np.array([[-1.0, 0, -6], [-0.3, 0.2, -6], [0.3, -0.2, -6], [1.0, 0, -6]])
