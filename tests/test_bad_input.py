@@ -107,7 +107,7 @@ CASES = [
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations 0", "--max-iterations must be an integer >= 1; got 0"),
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --max-iterations -5", "--max-iterations must be an integer >= 1; got -5"),
     ("reconstruct", "{d}/tracks_ok.csv --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
-    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective", "needs its intrinsics"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective", "needs its calibration"),
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --focal 500", "--focal needs the image size"),
     ("reconstruct", "{d}/tracks_ok.csv --out {out} --camera perspective --intrinsics {d}/K_singular.csv",
      "K_singular.csv: line 2: fx and fy must be > 0"),

@@ -1,10 +1,12 @@
 """kalmansfm: Kalman feature tracking, shape from motion by factorization, and structure fusion.
 
 The public API is what ``__all__`` lists; everything else is internal.
-Data flows one way: frames → :func:`track` → :func:`factorize` → report
-(:func:`run_demo` does all of it); :func:`fuse` fuses each tracked point over views of
-known cameras (:class:`CameraSet`) into a 3D point with a covariance; :func:`fuse_recursive`
-and :func:`estimate_landmarks` fuse 3D structure under known motion.
+Data flows one way: frames → :func:`track` → a :class:`Reconstruction` → report
+(:func:`run_demo` does all of it).  Every way of reconstructing returns the same
+:class:`Reconstruction`: :func:`factorize` (affine cameras), :func:`fuse` (each tracked point fused
+over views of known cameras, :class:`CameraSet`) and :func:`reconstruct_perspective` (calibrated
+cameras with unknown motion); :func:`fuse_recursive` and :func:`estimate_landmarks` fuse 3D
+structure under known motion.
 The layers and what each may import: docs/architecture.md.
 
 Importing the package is light: the names of ``__all__`` other than the error classes are
@@ -21,10 +23,13 @@ if TYPE_CHECKING:  # what type checkers see; at run time __getattr__ loads these
     from ._version import __version__
 
 __all__ = [
+    "Affine",
     "CameraSet",
+    "DemoRequest",
     "DemoRun",
+    "FrameStatus",
+    "FuseRequest",
     "FuseRun",
-    "FusedStructure",
     "FusionSettings",
     "FilterRun",
     "FusionResult",
@@ -34,10 +39,13 @@ __all__ = [
     "KalmanSfmWarning",
     "LandmarkEstimates",
     "LinearGaussianModel",
+    "NoiseEstimate",
     "NotEnoughDataError",
-    "PerspectiveReconstruction",
+    "Observations",
+    "Perspective",
     "PerspectiveSettings",
     "PointStatus",
+    "ReconstructRequest",
     "Reconstruction",
     "SingularCovarianceError",
     "SmoothedRun",
@@ -57,6 +65,7 @@ __all__ = [
     "reconstruct_perspective",
     "run_demo",
     "run_fuse",
+    "run_reconstruct",
     "smooth",
     "track",
     "triangulate_midpoint",

@@ -16,13 +16,25 @@ from .estimation import (
     fuse_recursive,
     smooth,
 )
-from .pipeline import DemoRun, FuseRun, run_demo, run_fuse
+from .pipeline import (
+    Affine,
+    DemoRequest,
+    DemoRun,
+    FuseRequest,
+    FuseRun,
+    Perspective,
+    ReconstructRequest,
+    run_demo,
+    run_fuse,
+    run_reconstruct,
+)
 from .structure import (
     CameraSet,
-    FusedStructure,
+    FrameStatus,
     FusionSettings,
     LandmarkEstimates,
-    PerspectiveReconstruction,
+    NoiseEstimate,
+    Observations,
     PerspectiveSettings,
     PointStatus,
     Reconstruction,

@@ -19,7 +19,24 @@ __all__ = [
 
 
 class KalmanSfmError(Exception):
-    """Base class of every error kalmansfm raises on purpose."""
+    """Base class of every error kalmansfm raises on purpose.
+
+    Parameters
+    ----------
+    message : one line: what is wrong, what was expected and what came.
+    fields : the names of the arguments or request fields the message mentions, so that a
+        front end (the command line) can put its own names (``--focal``) in their place.
+
+    Examples
+    --------
+    >>> err = InvalidInputError("give intrinsics or focal, exactly one", fields=("intrinsics", "focal"))
+    >>> str(err), err.fields
+    ('give intrinsics or focal, exactly one', ('intrinsics', 'focal'))
+    """
+
+    def __init__(self, *args: object, fields: tuple[str, ...] = ()) -> None:
+        super().__init__(*args)
+        self.fields = tuple(fields)
 
 
 class InvalidInputError(KalmanSfmError, ValueError):

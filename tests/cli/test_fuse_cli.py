@@ -61,17 +61,17 @@ def test_fuse_writes_the_run_folder_and_its_report(scene_files, capsys):
     assert points.track_ids.tolist() == list(range(100, 160))
     assert np.sqrt(np.mean(np.sum((points.points - s.points) ** 2, axis=1))) < 0.05
     summary = read_summary(run / "summary.json")
-    assert summary.command == "fuse" and summary.fusion.fused == 60 and summary.fusion.pixel_std_estimated
+    assert summary.command == "fuse" and summary.reconstruction.reconstructed == 60 and summary.reconstruction.noise_estimated
     assert "fusion.png" in load_run(run).figures
     html = build_report(run).read_text()
-    assert "Structure fusion with known cameras" in html and "points fused" in html
+    assert "known cameras: recursive fusion" in html and "points reconstructed" in html
 
 
 def test_methods_and_fixed_noise(scene_files, capsys):
     _, folder = scene_files
     for method in ("batch", "pairs"):
         assert main(fuse_args(folder, "--method", method, "--pixel-std", "0.5", "--no-plot")) == 0
-        assert read_summary(folder / "run" / "summary.json").fusion.method == method
+        assert read_summary(folder / "run" / "summary.json").reconstruction.method == method
         assert "pixel noise: 0.5 px (given)" in capsys.readouterr().out
 
 
@@ -85,7 +85,7 @@ def test_frames_without_a_camera_are_skipped_with_one_warning(scene_files, capsy
     assert len(warnings) == 1 and warnings[0].startswith("warning: ") and "14" in warnings[0]
     assert "without a camera" not in captured.err
     summary = read_summary(folder / "run" / "summary.json")
-    assert summary.fusion.frames_without_camera == (14,) and summary.fusion.cameras == 4
+    assert summary.reconstruction.skipped_frames == (14,) and summary.reconstruction.frames == 4
 
 
 def test_points_behind_every_camera_get_a_status(tmp_path, capsys):

@@ -26,10 +26,10 @@ def test_reconstruct_writes_all_files(tmp_path, capsys):
     assert (structure[:, 10] == 30).all()  # every point seen in all 30 frames
     # seen equally often, the points' residual RMS combine into the run's rank-3 residual
     summary = read_summary(out / "summary.json")
-    assert np.sqrt(np.mean(structure[:, 11] ** 2)) == pytest.approx(summary.structure.residual_rms_px, rel=1e-9)
+    assert np.sqrt(np.mean(structure[:, 11] ** 2)) == pytest.approx(summary.reconstruction.reprojection_rms_px, rel=1e-9)
     motion = np.loadtxt(out / "motion.csv", delimiter=",", skiprows=1)
     assert motion.shape == (30, 9) and motion[0, 0] == 1
-    assert summary.structure.residual_rms_px == pytest.approx(2.88, abs=0.01)
+    assert summary.reconstruction.reprojection_rms_px == pytest.approx(2.88, abs=0.01)
     assert (out / "structure.png").read_bytes()[:4] == b"\x89PNG"
 
 

@@ -9,7 +9,7 @@ from kalmansfm.io.intrinsics import intrinsics_csv, read_intrinsics
 from kalmansfm.io.cameras import POSE_COLUMNS, POSE_STD_COLUMNS, read_cameras
 from kalmansfm.io.structure import STRUCTURE_COLUMNS
 from kalmansfm.io.tracks import observations_csv
-from kalmansfm.pipeline import run_reconstruct
+from kalmansfm.pipeline import Perspective, ReconstructRequest, run_reconstruct
 from kalmansfm.report import build_report
 from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.geometry.alignment import align_similarity
@@ -55,8 +55,9 @@ def test_perspective_run_folder_files_report_and_accuracy(files, scene, capsys):
     assert (run / "cameras.csv").read_text().splitlines()[0] == ",".join(POSE_COLUMNS + POSE_STD_COLUMNS)
     assert "free-network gauge" in (run / "structure.ply").read_text().splitlines()[2]
     summary = read_summary(run / "summary.json")
-    p = summary.perspective
-    assert p.registered_frames == 7 and p.reconstructed >= 140 and p.pixel_std_px == pytest.approx(0.5, rel=0.1)
+    p = summary.reconstruction
+    assert p.kind == "perspective" and p.registered_frames == 7 and p.reconstructed >= 140
+    assert p.noise_std == pytest.approx(0.5, rel=0.1)
     assert p.initial_pair[0] >= 20  # frame numbers of the file, not indices
     # the files hold the reconstruction: points match the truth after alignment, cameras by frame number
     cams = read_cameras(run / "cameras.csv")
@@ -66,7 +67,7 @@ def test_perspective_run_folder_files_report_and_accuracy(files, scene, capsys):
     cov = table.structure.covariances
     assert al.rms < 0.05 and cov.shape == (len(table.structure.track_ids), 3, 3) and np.isfinite(cov).all()
     html = build_report(run).read_text()
-    assert "Perspective reconstruction" in html and "camera_centres" in html
+    assert "calibrated cameras, unknown motion: bundle adjustment" in html and "camera_centres" in html
 
 
 def test_cameras_csv_of_a_perspective_run_is_the_reconstruction_and_feeds_fuse(files, capsys):
@@ -75,9 +76,9 @@ def test_cameras_csv_of_a_perspective_run_is_the_reconstruction_and_feeds_fuse(f
     assert main(args(files, "--camera", "perspective", "--intrinsics", k_file)) == 0
     written = files / "run" / "cameras.csv"
     # the same reconstruction through the pipeline function the command runs, for its R and t
-    same = run_reconstruct(files / "tracks.csv", files / "again", camera="perspective", intrinsics=k_file)
+    same = run_reconstruct(ReconstructRequest(files / "tracks.csv", files / "again", Perspective(intrinsics=k_file)))
     assert (files / "again" / "cameras.csv").read_bytes() == written.read_bytes()
-    rec, frames = same.perspective, same.tracks.frames
+    rec, frames = same.reconstruction, same.tracks.frames
     reg = rec.registered
     cams = read_cameras(written)
     assert cams.frames.tolist() == frames[reg].tolist() == list(range(20, 27))
@@ -89,8 +90,8 @@ def test_cameras_csv_of_a_perspective_run_is_the_reconstruction_and_feeds_fuse(f
     # the uncertainty columns keep their meaning
     table = np.genfromtxt(written, delimiter=",", names=True)
     np.testing.assert_allclose(table["rotation_std_deg"],
-                               np.degrees(rms_std(rec.camera_covariances[reg, :3, :3])), rtol=1e-15)
-    np.testing.assert_allclose(table["centre_std"], rms_std(rec.camera_covariances[reg, 3:, 3:]), rtol=1e-15)
+                               np.degrees(rms_std(rec.pose_covariances[reg, :3, :3])), rtol=1e-15)
+    np.testing.assert_allclose(table["centre_std"], rms_std(rec.pose_covariances[reg, 3:, 3:]), rtol=1e-15)
     capsys.readouterr()
     fuse = ["fuse", str(files / "tracks.csv"), "--cameras", str(written), "--out", str(files / "fused"), "--quiet"]
     assert exit_code(fuse) == 0
@@ -101,24 +102,24 @@ def test_cameras_csv_of_a_perspective_run_is_the_reconstruction_and_feeds_fuse(f
 def test_auto_keeps_the_perspective_model_on_perspective_data(files, capsys):
     assert main(args(files, "--camera", "auto", "--focal", "800", "--image-size", "1280", "960")) == 0
     assert "camera: perspective: reprojection RMS" in capsys.readouterr().out
-    assert read_summary(files / "run" / "summary.json").perspective.camera_choice.startswith("perspective")
+    assert read_summary(files / "run" / "summary.json").reconstruction.camera_choice.startswith("perspective")
 
 
 def test_recursive_method_from_the_command_line(files):
     assert main(args(files, "--camera", "perspective", "--intrinsics", str(files / "K.csv"), "--method",
                      "recursive")) == 0
-    assert read_summary(files / "run" / "summary.json").perspective.method == "recursive"
+    assert read_summary(files / "run" / "summary.json").reconstruction.method == "recursive"
 
 
 @pytest.mark.parametrize("extra, k_text, message", [
-    (["--camera", "perspective"], None, "needs its intrinsics: give --intrinsics K.csv or --focal F"),
+    (["--camera", "perspective"], None, "needs its calibration: give --intrinsics (a K.csv) or --focal (pixels), exactly one"),
     (["--camera", "perspective", "--focal", "800"], None, "--focal needs the image size"),
     (["--intrinsics", "K.csv"], None, "describe a perspective camera: add --camera perspective"),
     (["--camera", "perspective", "--intrinsics", "K.csv"],
      "frame,fx,fy,cx,cy,skew\n20,800,800,640,480,0\n21,800,800,640,480,0\n", "no intrinsics for frame 22"),
     (["--camera", "perspective", "--intrinsics", "K.csv"],
      "frame,fx,fy,cx,cy,skew\n0,800,0,640,480,0\n", "line 2: fx and fy must be > 0"),
-    (["--camera", "perspective", "--intrinsics", "K.csv", "--focal", "700"], None, "exactly one of them"),
+    (["--camera", "perspective", "--intrinsics", "K.csv", "--focal", "700"], None, "or --focal (pixels), exactly one"),
     (["--camera", "perspective", "--focal", "-3", "--image-size", "640", "480"], None, "focal must be finite and > 0"),
     (["--camera", "perspective", "--intrinsics", "K.csv", "--outlier-threshold", "0"], None,
      "--outlier-threshold must be finite and > 0"),
@@ -144,4 +145,4 @@ def test_degenerate_scene_is_one_line(tmp_path, capsys):
     # auto falls back to the affine model and says why
     assert exit_code(args(tmp_path, "--camera", "auto", "--intrinsics", str(tmp_path / "K.csv"))) == 0
     summary = read_summary(tmp_path / "run" / "summary.json")
-    assert summary.perspective is None and "perspective reconstruction was impossible" in summary.warnings[0]
+    assert summary.reconstruction.kind == "affine" and "perspective reconstruction was impossible" in summary.warnings[0]

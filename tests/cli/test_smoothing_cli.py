@@ -7,7 +7,7 @@ import pytest
 from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
 from kalmansfm.io.tracks import read_tracks_csv, read_tracks_npz
-from kalmansfm.pipeline import read_tracks_for_factorization, run_demo
+from kalmansfm.pipeline import DemoRequest, read_tracks_for_factorization, run_demo
 from kalmansfm.scenes import render_scene
 from kalmansfm.tracking.smoothing import smooth_tracks
 
@@ -58,8 +58,8 @@ def test_reconstruct_smooths_a_tracker_npz_by_default(tracked, tmp_path, capsys)
     assert main(["reconstruct", str(npz), "--out", str(tmp_path / "default"), "--no-plot", "-q"]) == 0
     assert "smoothed" in capsys.readouterr().out
     assert main(["reconstruct", str(npz), "--out", str(tmp_path / "raw"), "--no-plot", "--no-smooth", "-q"]) == 0
-    default = read_summary(tmp_path / "default" / "summary.json").structure
-    raw = read_summary(tmp_path / "raw" / "summary.json").structure
+    default = read_summary(tmp_path / "default" / "summary.json").reconstruction
+    raw = read_summary(tmp_path / "raw" / "summary.json").reconstruction
     assert default.smoothed is True and raw.smoothed is False
     assert default.singular_values != raw.singular_values
     # the observations are the smoothed measured positions, weighted by the smoothed std
@@ -93,8 +93,8 @@ def test_a_csv_is_read_as_it_is_unless_smoothing_is_required(tracked, tmp_path, 
 
 def test_run_demo_smooths_unless_asked_not_to(tmp_path):
     options = dict(n_frames=8, html=False, save_frames=False)
-    plain = run_demo(tmp_path / "plain", smooth=False, **options)
-    smoothed = run_demo(tmp_path / "smoothed", **options)
+    plain = run_demo(DemoRequest(tmp_path / "plain", smooth=False, **options))
+    smoothed = run_demo(DemoRequest(tmp_path / "smoothed", **options))
     assert plain.summary.smoothed is False and smoothed.summary.smoothed is True
     np.testing.assert_array_equal(smoothed.tracks.states, smooth_tracks(plain.tracks).states)
     assert read_tracks_npz(tmp_path / "smoothed" / "tracks.npz").smoothed is True

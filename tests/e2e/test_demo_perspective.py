@@ -26,14 +26,14 @@ def test_demo_reconstructs_a_real_clip_with_a_perspective_camera(clip, tmp_path,
                  "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "perspective reconstruction: 16 of 16 frames registered" in printed
-    p = read_summary(out / "summary.json").perspective
+    p = read_summary(out / "summary.json").reconstruction
     assert p.registered_frames == 16 and p.reconstructed >= 150
     assert p.reprojection_rms_px < 1.0  # the tracker's sub-pixel positions fit one rigid perspective scene
     html = (out / "report.html").read_text()
-    assert "Perspective reconstruction" in html and "reprojection RMS" in html
+    assert "calibrated cameras, unknown motion" in html and "reprojection RMS" in html
 
 
 def test_perspective_demo_needs_a_sequence_and_a_focal_length(tmp_path, capsys):
     assert main(["demo", "--camera", "perspective", "--focal", "800", "--out", str(tmp_path / "run")]) == 2
-    assert "needs your own sequence" in capsys.readouterr().err
+    assert "needs your own sequence as --input" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()

@@ -20,7 +20,7 @@ from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
 from kalmansfm.io.structure import read_points_table
 from kalmansfm.io.tracks import read_tracks_npz
-from kalmansfm.pipeline import run_demo
+from kalmansfm.pipeline import DemoRequest, run_demo
 from kalmansfm.report.drawing import TRACK_PALETTE, track_colors
 from kalmansfm.scenes import render_scene
 from kalmansfm.tracking import INITIALISING, PREDICTED
@@ -50,8 +50,8 @@ def test_unreliable_points_are_marked_counted_and_left_out_of_the_plots(hotel_ru
     far = np.abs(table.points[:, 2] - np.median(core[:, 2])) > 1000
     assert far.any() and unreliable[far].all()
     # counted: summary, warning line on the console, report header
-    assert summary.structure.unreliable_points == unreliable.sum()
-    (warning,) = summary.warnings
+    assert summary.reconstruction.unreliable == unreliable.sum()
+    (warning,) = summary.all_warnings
     assert warning.startswith(f"{unreliable.sum()} of {len(table.track_ids)} reconstructed points are unreliable")
     assert f"warning: {warning}\n" in hotel_run.printed
     document = report_of(hotel_run)
@@ -71,7 +71,7 @@ def test_reconstruct_of_the_same_tracks_gives_the_same_verdict(hotel_run, tmp_pa
     again = read_points_table(tmp_path / "shape" / "structure.csv")
     np.testing.assert_array_equal(again.track_ids, demo.track_ids)
     np.testing.assert_array_equal(again.status, demo.status)
-    (warning,) = read_summary(tmp_path / "shape" / "summary.json").warnings
+    (warning,) = read_summary(tmp_path / "shape" / "summary.json").all_warnings
     assert f"warning: {warning}" in capsys.readouterr().out
 
 
@@ -141,7 +141,7 @@ def picked_ids_run(tmp_path_factory):
         cv2.imwrite(str(frames / f"f{f:02d}.png"), frame)
     start = scene.visible[0]
     ids = 5 + 31 * np.arange(int(start.sum()))  # colour index 5, 6, 7, …: never the column's
-    return run_demo(base / "run", input=frames, points=scene.positions[0, start], track_ids=ids)
+    return run_demo(DemoRequest(base / "run", input=frames, points=scene.positions[0, start], track_ids=ids))
 
 
 def test_a_track_has_one_colour_in_every_picture_and_table(picked_ids_run):

@@ -20,6 +20,7 @@ import pytest
 from kalmansfm.cli.main import main
 from kalmansfm.io import atomic
 from kalmansfm.io.summary import read_summary
+from kalmansfm.pipeline import DemoRequest
 from kalmansfm.pipeline import demo as pipeline
 from kalmansfm.pipeline import stage
 
@@ -39,7 +40,7 @@ def _snapshot(root: Path) -> dict[str, bytes]:
 def earlier_run(tmp_path_factory) -> Path:
     """A finished demo run (8 frames, no report) that a second run will try to replace."""
     out = tmp_path_factory.mktemp("interrupt") / "run"
-    pipeline.run_demo(out, n_frames=8, seed=3, html=False)
+    pipeline.run_demo(DemoRequest(out, n_frames=8, seed=3, html=False))
     return out
 
 
@@ -53,7 +54,7 @@ def run_folder(earlier_run, tmp_path) -> Path:
     return copy
 
 
-@pytest.mark.parametrize("step", ["stage_tracking", "stage_structure", "factorize_tracks", "track"])
+@pytest.mark.parametrize("step", ["stage_tracking", "stage_reconstruction", "factorize_tracks", "track"])
 def test_ctrl_c_inside_the_pipeline_keeps_the_earlier_results(step, run_folder, monkeypatch, capsys):
     before = _snapshot(run_folder)
 
@@ -75,7 +76,7 @@ def test_a_failure_while_writing_keeps_the_earlier_results(run_folder, monkeypat
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device", str(run_folder / "structure.csv"))
 
-    monkeypatch.setattr(pipeline, "stage_structure", disk_full)
+    monkeypatch.setattr(pipeline, "stage_reconstruction", disk_full)
     code = main(["demo", "--out", str(run_folder), "--frames", "5", "--seed", "1", "--quiet"])
     err = capsys.readouterr().err
     assert code == 2
@@ -84,7 +85,7 @@ def test_a_failure_while_writing_keeps_the_earlier_results(run_folder, monkeypat
 
 
 def test_ctrl_c_in_a_fresh_folder_leaves_nothing(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(pipeline, "stage_structure", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    monkeypatch.setattr(pipeline, "stage_reconstruction", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
     out = tmp_path / "new" / "run"
     assert main(["demo", "--out", str(out), "--frames", "5", "--quiet"]) == 130
     assert not (tmp_path / "new").exists()
@@ -131,14 +132,14 @@ from pathlib import Path
 import kalmansfm.pipeline.demo as pipeline
 from kalmansfm.cli.main import run
 
-real = pipeline.stage_structure
+real = pipeline.stage_reconstruction
 marker, folder = sys.argv[1:3]
-def slow_stage_structure(out, *args, **kwargs):
+def slow_stage_reconstruction(out, *args, **kwargs):
     names = real(out, *args, **kwargs)  # some new files are staged now
     Path(marker).write_text("writing")
     time.sleep(60)                      # ... and here comes Ctrl-C or SIGTERM
     return names
-pipeline.stage_structure = slow_stage_structure
+pipeline.stage_reconstruction = slow_stage_reconstruction
 sys.argv = ["kalmansfm", "demo", "--out", folder, "--frames", "5", "--seed", "1"]
 run()                                   # the console entry point, with its SIGTERM handling
 """

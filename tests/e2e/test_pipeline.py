@@ -5,12 +5,12 @@ import pytest
 
 from kalmansfm.cli.main import main
 from kalmansfm.io import RunSummary, read_summary, summary_json
-from kalmansfm.pipeline import run_demo
+from kalmansfm.pipeline import DemoRequest, run_demo
 
 
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory):
-    return run_demo(tmp_path_factory.mktemp("demo") / "run", seed=0, html=False)
+    return run_demo(DemoRequest(tmp_path_factory.mktemp("demo") / "run", seed=0, html=False))
 
 
 def test_demo_writes_every_output_file(demo_run):
@@ -40,7 +40,7 @@ def test_summary_matches_the_returned_objects(demo_run):
     s = demo_run.summary
     assert read_summary(demo_run.out_dir / "summary.json") == s
     assert s.tracking.tracks == demo_run.tracks.track_ids.size
-    np.testing.assert_allclose(s.structure.singular_values, demo_run.reconstruction.singular_values[:10])
+    np.testing.assert_allclose(s.reconstruction.singular_values, demo_run.reconstruction.details.singular_values[:10])
     assert len(s.tracking.per_track) == demo_run.tracks.track_ids.size
 
 

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -100,7 +101,8 @@ def test_every_command_records_what_it_was_made_from(tmp_path):
     assert dict(track.options)["smooth"] == "false"
     shape = read_summary(tmp_path / "shape" / "summary.json").source
     assert shape.input == str((tmp_path / "tracks" / "tracks.npz").resolve()) and shape.files == 1
-    assert dict(shape.options)["weighted"] == "true"
+    camera = json.loads(dict(shape.options)["camera"])
+    assert camera["model"] == "affine" and camera["weighted"] is True
     assert read_summary(scene / "summary.json").source.input == "built-in scene (seed 0, 5 frames)"
 
 
@@ -152,4 +154,6 @@ def test_a_perspective_reconstruct_over_an_affine_one_records_the_intrinsics_and
     source = read_summary(out / "summary.json").source
     assert source.files == 2  # the tracks and K.csv
     options = dict(source.options)
-    assert options["camera"] == '"perspective"' and "perspective" in options
+    camera = json.loads(options["camera"])
+    assert camera["model"] == "perspective" and camera["intrinsics"].endswith("K.csv")
+    assert camera["settings"]["method"] == "batch"

@@ -14,7 +14,7 @@ from scipy import stats
 
 from kalmansfm.io.cameras import match_cameras, read_cameras
 from kalmansfm.io.tracks import read_tracks
-from kalmansfm.structure.fusion.point_fusion import fuse
+from kalmansfm.structure.fusion import fuse
 
 from _oxford import DATASETS, convert
 
@@ -36,15 +36,15 @@ def dataset(request, tmp_path_factory):
 def test_fused_points_are_the_datasets_own(dataset, method):
     name, matched, truth = dataset
     f = fuse(matched.observations, matched.cameras, method=method, history=True)
-    assert f.fused.all()
+    assert f.reconstructed.all()
     radius = np.median(np.linalg.norm(truth - np.median(truth, axis=0), axis=1))
     difference = np.linalg.norm(f.points - truth, axis=1) / radius
     assert np.median(difference) <= 1e-4
     # plausible noise: the VGG readmes quote median reprojection errors of 0.1-0.4 px
-    assert 0.1 < f.pixel_std < 0.5
+    assert 0.1 < f.noise.std < 0.5
     if name == "oxford_model_house":
-        assert f.orientation == -1  # the mirrored reconstruction: points at negative depth with det R = +1
-        assert 40 <= f.rejected.sum() <= 150  # some gross mismatches
+        assert f.details.orientation == -1  # the mirrored reconstruction: points at negative depth with det R = +1
+        assert 40 <= f.observations.rejected_mask().sum() <= 150  # some gross mismatches
 
 
 def test_two_view_estimates_agree_with_the_final_ones_within_their_own_covariance(dataset):
@@ -54,14 +54,14 @@ def test_two_view_estimates_agree_with_the_final_ones_within_their_own_covarianc
     """
     _, matched, _ = dataset
     f = fuse(matched.observations, matched.cameras, history=True)
-    first = f.history.first()
+    first = f.details.history.first()
     extra = f.views[first.points] - 2
     for more, dof in ((1, 2), (2, 3)):
         sel = np.isfinite(first.estimates).all(axis=1) & ((extra == 1) if more == 1 else (extra >= 2))
         if sel.sum() < 50:
             continue
         e = first.estimates[sel] - f.points[first.points[sel]]
-        w, U = np.linalg.eigh(first.covariances[sel] - f.covariances[first.points[sel]])
+        w, U = np.linalg.eigh(first.covariances[sel] - f.point_covariances[first.points[sel]])
         z = np.einsum("nij,ni->nj", U[:, :, -dof:], e)
         nees = np.sum(z**2 / w[:, -dof:], axis=1)
         assert 0.6 < np.median(nees) / stats.chi2.median(dof) < 1.3

@@ -36,11 +36,11 @@ def test_factorize_never_crashes(seed, frames, points, missing, noise, flat):
     rows = np.isfinite(rec.motion).all(axis=(1, 2))
     cols = np.isfinite(rec.points).all(axis=1)
     assert rows.sum() >= 3 and cols.sum() >= 4
-    assert np.isfinite(rec.residual_rms) and rec.residual_rms >= 0
-    assert np.isfinite(rec.translation[rows]).all()
-    assert np.array_equal(np.isfinite(rec.residuals), rec.observed)
+    assert np.isfinite(rec.reprojection_rms) and rec.reprojection_rms >= 0
+    assert np.isfinite(rec.image_translation[rows]).all()
+    assert np.array_equal(np.isfinite(rec.observations.residual_matrix()), rec.observations.used_mask())
     if flat and noise == 0.0 and missing == 0.0:
         # (with holes, a planar scene can have exact non-planar completions: not flaggable)
         assert any("coplanar" in w or "rank 3" in w for w in rec.warnings)
     if not flat and noise == 0.0 and missing == 0.0:
-        assert rec.residual_rms < 1e-6
+        assert rec.reprojection_rms < 1e-6

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kalmansfm.structure.geometry.pinhole import CameraSet, project_points
-from kalmansfm.structure.fusion.point_fusion import fuse
+from kalmansfm.structure.fusion import fuse
 
 
 def look_at(centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -53,10 +53,10 @@ def test_recursive_equals_batch_for_small_noise(problem):
     kw = dict(pixel_std=sigma, outlier_probability=1.0)
     rec = fuse(obs, cams, method="recursive", **kw)
     bat = fuse(obs, cams, method="batch", **kw)
-    np.testing.assert_array_equal(rec.status, bat.status)
-    ok = bat.fused
+    np.testing.assert_array_equal(rec.point_status, bat.point_status)
+    ok = bat.reconstructed
     d = rec.points[ok] - bat.points[ok]
-    std = np.sqrt(np.diagonal(bat.covariances[ok], axis1=1, axis2=2))
+    std = np.sqrt(np.diagonal(bat.point_covariances[ok], axis1=1, axis2=2))
     assert np.all(np.abs(d) <= 1e-2 * std)
-    np.testing.assert_allclose(rec.covariances[ok], bat.covariances[ok], rtol=2e-2,
-                               atol=2e-2 * np.abs(bat.covariances[ok]).max())
+    np.testing.assert_allclose(rec.point_covariances[ok], bat.point_covariances[ok], rtol=2e-2,
+                               atol=2e-2 * np.abs(bat.point_covariances[ok]).max())

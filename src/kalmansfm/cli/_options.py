@@ -11,6 +11,7 @@ option the user typed (``--frames``) instead of the library's argument (``n_fram
 from __future__ import annotations
 
 import argparse
+import re
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 
@@ -89,11 +90,23 @@ def as_typed(names: Mapping[str, str]) -> Iterator[None]:
     ... except InvalidInputError as exc:
     ...     print(exc)
     --frames must be an integer >= 3; got 0
+    >>> try:
+    ...     with as_typed({"focal": "--focal", "intrinsics": "--intrinsics"}):
+    ...         raise InvalidInputError("give intrinsics or focal", fields=("intrinsics", "focal"))
+    ... except InvalidInputError as exc:
+    ...     print(exc)
+    give --intrinsics or --focal
     """
     try:
         yield
     except KalmanSfmError as exc:
         message = str(exc)
+        named = [name for name in exc.fields if name in names]
+        if named:
+            # the library said which words of its message are field names: put the options there
+            for name in named:
+                message = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w-])", names[name], message)
+            raise type(exc)(message) from None
         for name, option in sorted(names.items(), key=lambda item: -len(item[0])):
             if message.startswith(name) and message[len(name):len(name) + 1] in (" ", ":", ";", ","):
                 raise type(exc)(option + message[len(name):]) from None

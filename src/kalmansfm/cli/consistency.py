@@ -12,7 +12,7 @@ from ..experiments.consistency import SPACES, run_consistency
 from ..experiments.task7 import DEFAULT_FOCAL, DEFAULT_PIXEL_NOISE_STD
 from ..report.consistency import consistency_csv, consistency_text
 from ..structure.fusion.landmark import TASK7_DEFAULT_METHOD
-from ..structure.fusion.point_fusion import FUSION_METHODS
+from ..structure.fusion import FUSION_METHODS
 from ._options import add_hidden_alias, as_typed
 
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import webbrowser
+from pathlib import Path
 
-from ..pipeline import describe, run_demo
+from ..errors import InvalidInputError
+from ..pipeline import Affine, DemoRequest, Perspective, describe, run_demo
 from ..scenes import DEFAULT_SCENE_FRAMES, DEFAULT_SCENE_SEED
 from ..tracking import TrackerSettings
 from ..tracking.settings import MATCHERS
@@ -40,22 +42,35 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument("--matcher", choices=MATCHERS, default=TrackerSettings().matcher,
                    help="differential: Lucas-Kanade from the Kalman prediction, anchored and checked; search: the "
                    "report's exhaustive template search inside the gate (see 'kalmansfm track --help')")
+    defaults = TrackerSettings()
+    p.add_argument("--max-features", type=int, default=defaults.max_features,
+                   help="--input: at most this many corners are detected and tracked")
+    p.add_argument("--redetect", action="store_true",
+                   help="--input: detect new corners where tracks were lost (see 'kalmansfm track --help')")
     p.add_argument("--camera", choices=("affine", "perspective"), default="affine",
-                   help="affine: factorization; perspective: calibrated reconstruction of your --input with --focal "
-                   "(bundle adjustment, covariances in the free-network gauge)")
+                   help="affine: factorization; perspective: calibrated reconstruction of your --input with "
+                   "--intrinsics or --focal (bundle adjustment, covariances in the free-network gauge)")
+    p.add_argument("--intrinsics", metavar="K.csv", type=Path, default=None,
+                   help="--camera perspective: the intrinsics, frame,fx,fy,cx,cy,skew (one row for all frames or one "
+                   "per frame)")
     p.add_argument("--focal", metavar="F", type=float, default=None,
-                   help="--camera perspective: focal length in pixels (principal point at the image centre)")
+                   help="--camera perspective: focal length in pixels instead of --intrinsics (principal point at the "
+                   "image centre)")
     p.add_argument("--open", action="store_true", help="open report.html in a browser when done")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and print a short summary."""
-    with as_typed({"n_frames": "--frames", "seed": "--seed", "focal": "--focal"}):
-        result = run_demo(
-            args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth, progress=not args.quiet,
-            camera=args.camera, focal=args.focal, settings=TrackerSettings(matcher=args.matcher),
-        )
+    if args.camera == "affine" and (args.focal is not None or args.intrinsics is not None):
+        raise InvalidInputError("--intrinsics and --focal describe a perspective camera: add --camera perspective")
+    with as_typed({"n_frames": "--frames", "seed": "--seed", "focal": "--focal", "intrinsics": "--intrinsics",
+                   "input": "--input", "max_features": "--max-features"}):
+        camera = Affine() if args.camera == "affine" else Perspective(intrinsics=args.intrinsics, focal=args.focal)
+        tracker = TrackerSettings(matcher=args.matcher, max_features=args.max_features, redetect=args.redetect)
+        result = run_demo(DemoRequest(
+            args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth,
+            progress=not args.quiet, camera=camera, tracker=tracker))
     print(describe(result))
     if args.open and result.report is not None:
         webbrowser.open(result.report.resolve().as_uri())

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..pipeline import run_fuse
+from ..pipeline import FuseRequest, run_fuse
 from ..pipeline.cluster import check_cluster
-from ..structure.fusion.point_fusion import FUSION_METHODS, FusionSettings
+from ..structure.fusion import FUSION_METHODS, FusionSettings
 from ._options import print_warnings
 
 _DEFAULTS = FusionSettings()
@@ -60,18 +60,18 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 def run(args: argparse.Namespace) -> int:
     check_cluster(args.scheduler, args.workers, scheduler_name="--scheduler", workers_name="--workers")
     settings = FusionSettings(args.method, args.pixel_std, args.outlier_prob, True, args.chunk_points)
-    result = run_fuse(args.tracks, args.cameras, args.out, settings, scheduler=args.scheduler,
-                      n_workers=args.workers, plot=not args.no_plot)
-    f = result.summary.fusion
-    assert f is not None  # run_fuse always records its fusion
-    print(f"views: {f.cameras}  tracks: {f.points}  method: {f.method}")
-    print(f"fused: {f.fused}  too few views: {f.too_few_views}  degenerate: {f.degenerate}  "
+    result = run_fuse(FuseRequest(args.tracks, args.cameras, args.out, settings, scheduler=args.scheduler,
+                                  workers=args.workers, plot=not args.no_plot))
+    f = result.summary.reconstruction
+    assert f is not None  # run_fuse always records its reconstruction
+    print(f"views: {f.frames}  tracks: {f.points}  method: {f.method}")
+    print(f"fused: {f.reconstructed}  too few views: {f.too_few_views}  degenerate: {f.degenerate}  "
           f"behind camera: {f.behind_camera}")
     print(f"observations: {f.observations}  rejected as outliers: {f.rejected}")
-    how = "estimated, " + f"{f.degrees_of_freedom} degrees of freedom" if f.pixel_std_estimated else "given"
-    print(f"pixel noise: {f.pixel_std_px:.4g} px ({how})")
+    how = "estimated, " + f"{f.degrees_of_freedom} degrees of freedom" if f.noise_estimated else "given"
+    print(f"pixel noise: {f.noise_std:.4g} px ({how})")
     if f.reprojection_rms_px is not None:
-        print(f"reprojection RMS: {f.reprojection_rms_px:.4g} px  median point uncertainty: {f.median_std:.4g}")
+        print(f"reprojection RMS: {f.reprojection_rms_px:.4g} px  median point uncertainty: {f.median_point_std:.4g}")
     print_warnings(result.summary)
     print(f"wrote {args.out}")
     return 0

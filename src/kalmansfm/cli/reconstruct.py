@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..pipeline import run_reconstruct
+from ..pipeline import Affine, Auto, Perspective, ReconstructRequest, run_reconstruct
 from ..pipeline.perspective import CAMERA_MODELS
+from ..pipeline.requests import Camera
 from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
-from ..structure.perspective.reconstruct import PERSPECTIVE_METHODS, PerspectiveSettings
+from ..structure.perspective import PERSPECTIVE_METHODS, PerspectiveSettings
 from ._options import as_typed, print_warnings
 
 
@@ -68,37 +69,42 @@ def run(args: argparse.Namespace) -> int:
     if args.camera == "affine" and (args.intrinsics is not None or args.focal is not None):
         raise InvalidInputError("--intrinsics and --focal describe a perspective camera: add --camera perspective "
                                 "(or auto)")
-    with as_typed({"outlier_threshold_px": "--outlier-threshold", "max_iterations": "--max-iterations"}):
-        settings = PerspectiveSettings(method=args.method, outlier_threshold_px=args.outlier_threshold)
-        result = run_reconstruct(args.tracks, args.out, camera=args.camera, intrinsics=args.intrinsics,
-                                 focal=args.focal, image_size=None if args.image_size is None else tuple(args.image_size),
-                                 perspective=settings, weighted=not args.no_weights, smooth=args.smooth,
-                                 max_iterations=args.max_iterations, plot=not args.no_plot)
-    if result.summary.perspective is not None:
+    with as_typed({"outlier_threshold_px": "--outlier-threshold", "max_iterations": "--max-iterations",
+                   "intrinsics": "--intrinsics", "focal": "--focal", "image_size": "--image-size"}):
+        affine = Affine(weighted=not args.no_weights, max_iterations=args.max_iterations)
+        camera: Camera = affine
+        if args.camera != "affine":
+            settings = PerspectiveSettings(method=args.method, outlier_threshold_px=args.outlier_threshold)
+            perspective = Perspective(intrinsics=args.intrinsics, focal=args.focal, settings=settings,
+                                      image_size=None if args.image_size is None else tuple(args.image_size))
+            camera = perspective if args.camera == "perspective" else Auto(perspective, affine)
+        result = run_reconstruct(ReconstructRequest(args.tracks, args.out, camera, smooth=args.smooth,
+                                                    plot=not args.no_plot))
+    s, r = result.summary.reconstruction, result.reconstruction
+    assert s is not None  # a reconstruct run records its reconstruction
+    if s.kind == "perspective":
         _print_perspective(result)
         return 0
-    s, r = result.summary.structure, result.reconstruction
-    assert s is not None and r is not None  # an affine run records its structure
-    shown = np.array2string(r.singular_values[:6], precision=4, separator=", ")
+    shown = np.array2string(r.details.singular_values[:6], precision=4, separator=", ")
     print(f"frames: {s.frames}  tracks: {s.points}  method: {s.method}"
           + (f" ({s.iterations} iterations)" if s.method == "als" else "")
           + ("  weighted by tracker std" if s.weighted else "")
           + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")
-    print(f"rank-3 residual: {s.residual_rms_px:.4f} px RMS")
+    print(f"rank-3 residual: {s.reprojection_rms_px:.4f} px RMS")
     print_warnings(result.summary)
     print(f"wrote {args.out}")
     return 0
 
 
 def _print_perspective(result) -> None:
-    p = result.summary.perspective
+    p = result.summary.reconstruction
     print(f"frames: {p.frames}  registered: {p.registered_frames}  tracks: {p.points}  reconstructed: "
           f"{p.reconstructed}  method: {p.method}")
     if p.camera_choice:
         print(f"camera: {p.camera_choice}")
     print(f"intrinsics: {p.intrinsics}")
-    print(f"inliers: {p.inliers} of {p.observations} observations; pixel noise sigma {p.pixel_std_px:.3g} px; "
+    print(f"inliers: {p.used} of {p.observations} observations; pixel noise sigma {p.noise_std:.3g} px; "
           f"reprojection RMS {p.reprojection_rms_px:.3g} px")
     print_warnings(result.summary)
     print(f"wrote {result.out_dir}")

@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 
-from ..pipeline import run_track
+from ..pipeline import TrackRequest, run_track
 from ..tracking import TrackerSettings
 from ..tracking.settings import MATCHERS
 from ._options import as_typed
@@ -72,8 +72,8 @@ def run(args: argparse.Namespace) -> int:
     smooth: bool | int = args.smooth_lag if args.smooth_lag is not None else bool(args.smooth)
     settings = settings_from_args(args)
     with as_typed({"smooth": "--smooth-lag"}):
-        result = run_track(args.input, args.out, points=args.points, settings=settings, smooth=smooth,
-                           progress=not args.quiet)
+        result = run_track(TrackRequest(args.input, args.out, points=args.points, settings=settings, smooth=smooth,
+                                        progress=not args.quiet))
     m = result.summary.tracking
     print(
         f"tracked {m.tracks} points through {m.frames} frames; {m.alive_in_last_frame} alive at the end, "

@@ -197,7 +197,7 @@ def pose_cameras_csv(frames: object, intrinsics: object, rotations: object, tran
 
 @dataclass(frozen=True)
 class CameraObservations:
-    """Track positions arranged by camera: the input of :func:`~kalmansfm.structure.fusion.point_fusion.fuse`.
+    """Track positions arranged by camera: the input of :func:`~kalmansfm.structure.fusion.fuse`.
 
     Attributes
     ----------

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..structure.fusion.point_fusion import FusedStructure
+from ..structure.reconstruction import Reconstruction
 from ._csv import csv_text, number
 from .structure import COVARIANCE_COLUMNS
 
@@ -24,21 +24,24 @@ REJECTED_COLUMNS = ("frame", "track_id", "x", "y", "residual_px")
 _UPPER = np.triu_indices(3)
 
 
-def history_csv(frames: np.ndarray, track_ids: np.ndarray, fused: FusedStructure) -> str:
+def history_csv(reconstruction: Reconstruction) -> str:
     """``history.csv`` of a fusion run with ``history=True`` (rows by view, then track)."""
-    h = fused.history
+    h = getattr(reconstruction.details, "history", None)
     if h is None:
         raise ValueError("the fusion was run without history")
     cov = h.covariances[:, _UPPER[0], _UPPER[1]]
-    frame_of, track_of = np.asarray(frames)[h.views].tolist(), np.asarray(track_ids)[h.points].tolist()
+    frame_of = reconstruction.frame_ids[h.views].tolist()
+    track_of = reconstruction.track_ids[h.points].tolist()
     rows = ([f, t, *map(number, (*x, *c))] for f, t, x, c in zip(frame_of, track_of, h.estimates, cov))
     return csv_text(HISTORY_COLUMNS, rows)
 
 
-def rejected_csv(frames: np.ndarray, track_ids: np.ndarray, observations: np.ndarray, fused: FusedStructure) -> str:
-    """``rejected.csv``: the rejected observations, by frame then track."""
-    v, n = np.nonzero(fused.rejected)
+def rejected_csv(reconstruction: Reconstruction) -> str:
+    """``rejected.csv``: the observations an outlier test rejected, by frame then track."""
+    obs = reconstruction.observations
+    pick = obs.rejected
+    frames = reconstruction.frame_ids[obs.frame[pick]].tolist()
+    tracks = reconstruction.track_ids[obs.point[pick]].tolist()
     rows = ([f, t, number(x), number(y), number(r)] for f, t, (x, y), r in
-            zip(np.asarray(frames)[v].tolist(), np.asarray(track_ids)[n].tolist(), observations[v, n],
-                fused.residuals[v, n]))
+            zip(frames, tracks, obs.xy[pick], obs.residual[pick]))
     return csv_text(REJECTED_COLUMNS, rows)

@@ -35,9 +35,7 @@ __all__ = [
     "Versions",
     "TrackMetrics",
     "TrackingMetrics",
-    "StructureMetrics",
-    "FusionMetrics",
-    "PerspectiveMetrics",
+    "ReconstructionMetrics",
     "Similarity",
     "TruthComparison",
     "read_summary",
@@ -46,11 +44,10 @@ __all__ = [
     "summary_json",
 ]
 
-#: Version of the ``summary.json`` layout; readers refuse other versions.  Version 3 added the
-#: run's ``source`` and the optional ``fusion`` and ``perspective`` records and
-#: ``StructureMetrics.noise_std`` / ``unreliable_points``; a version-2 file lacks the source
-#: ``batch`` compares, so it is refused (rerun the command) rather than read in part.
-SCHEMA_VERSION = 3
+#: Version of the ``summary.json`` layout; readers refuse other versions.  Version 4 replaced the
+#: ``structure``, ``fusion`` and ``perspective`` records by one ``reconstruction``
+#: (:class:`ReconstructionMetrics`) for every method; version 3 added the run's ``source``.
+SCHEMA_VERSION = 4
 SUMMARY_FILE = "summary.json"
 
 
@@ -101,127 +98,81 @@ class TrackingMetrics:
 
 
 @dataclass(frozen=True)
-class StructureMetrics:
-    """A factorization's figures (the recovered points and motion are in their own files).
+class ReconstructionMetrics:
+    """A reconstruction's figures, whatever made it (the points and cameras are in their own files).
+
+    Built by :func:`kalmansfm.pipeline.evaluate.reconstruction_metrics` from a
+    :class:`~kalmansfm.structure.Reconstruction`; the fields after ``warnings`` belong to some
+    methods only and are None (or empty) for the others.
 
     Attributes
     ----------
-    method : ``"closed-form"`` or ``"als"`` (missing data or weights).
-    frames, points : size of the measurement matrix.
-    reconstructed_frames, reconstructed_points : how many got a camera / a 3D point.
-    iterations : refinement iterations (0 for the closed form).
-    singular_values : the leading singular values of the registered measurement matrix.
-    residual_rms_px : RMS residual of the rank-3 fit, pixels.
-    weighted : observations weighted by the tracker's posterior variances.
-    smoothed : the positions were RTS-smoothed (True, or the lag), or not (False).
-    warnings : degeneracies found (not clearly rank 3, little rotation, …).
-    noise_std : σ̂ of the fit, the standard deviation of unit weight behind the points'
-        covariances (pixels when unweighted; with the tracker's weights, 1 when its σ are right).
-    unreliable_points : reconstructed points marked unreliable (too few views or too uncertain).
-    """
-
-    method: str
-    frames: int
-    points: int
-    reconstructed_frames: int
-    reconstructed_points: int
-    iterations: int
-    singular_values: tuple[float, ...]
-    residual_rms_px: float
-    weighted: bool
-    smoothed: bool | int
-    warnings: tuple[str, ...] = ()
-    noise_std: float | None = None
-    unreliable_points: int = 0
-
-
-@dataclass(frozen=True)
-class FusionMetrics:
-    """Structure fusion with known cameras (``kalmansfm fuse``).
-
-    Attributes
-    ----------
-    method : ``"recursive"``, ``"batch"`` or ``"pairs"``.
-    cameras : views fused (frames with both a camera and observations).
-    points : tracks read; ``fused`` (status ``ok``), ``too_few_views``, ``degenerate``, ``behind_camera`` count
-        them by :class:`~kalmansfm.structure.PointStatus`.
-    observations : measured positions in the fused views; ``rejected`` of them were outliers.
-    pixel_std_px : the image noise σ the covariances use; ``pixel_std_estimated`` when it came from
-        the residuals (2 degrees of freedom per observation minus 3 per point, after rejection).
-    degrees_of_freedom : 2 × accepted observations - 3 × fused points.
-    outlier_probability : the χ² gate's probability (1: no outlier test).
-    reprojection_rms_px : RMS reprojection error over the accepted observations of the fused points.
-    median_std : median over fused points of the RMS axis standard deviation √(tr Σ / 3), in world units.
-    orientation : +1, or -1 when the cameras' reconstruction is mirrored (points at negative depth).
-    passes : passes over the data (more than one when σ was estimated).
-    frames_without_camera : frames of the tracks that had observations but no camera (skipped).
-    """
-
-    method: str
-    cameras: int
-    points: int
-    fused: int
-    too_few_views: int
-    degenerate: int
-    behind_camera: int
-    observations: int
-    rejected: int
-    pixel_std_px: float
-    pixel_std_estimated: bool
-    degrees_of_freedom: int
-    outlier_probability: float
-    reprojection_rms_px: float | None
-    median_std: float | None
-    orientation: int
-    passes: int
-    frames_without_camera: tuple[int, ...] = ()
-
-
-@dataclass(frozen=True)
-class PerspectiveMetrics:
-    """Calibrated reconstruction with unknown motion (``reconstruct --camera perspective``).
-
-    Attributes
-    ----------
-    method : ``"batch"`` (bundle adjustment) or ``"recursive"`` (relative orientations + recursive fusion).
-    intrinsics : where K came from (a K.csv, or the focal length and image size).
-    frames, registered_frames : frames of the tracks and how many got a pose; ``unregistered``
+    kind : ``"affine"`` (factorization), ``"fusion"`` (known cameras) or ``"perspective"``
+        (calibrated, unknown motion).
+    method : the method within it (``svd``/``als``; ``recursive``/``batch``/``pairs``; ``batch``/``recursive``).
+    camera_model : ``"affine"`` or ``"pinhole"``.
+    frames, registered_frames : frames of the input and how many got a camera; ``unregistered``
         lists the others (frame numbers).
-    points : tracks read; ``reconstructed`` (status ``ok``), ``too_few_views``, ``degenerate`` count them by
-        :class:`~kalmansfm.structure.PointStatus`.
-    observations, inliers : measured positions in the frames, and those used in the final estimate.
-    pixel_std_px : σ of the image noise from the inlier residuals (degrees of freedom counted).
-    reprojection_rms_px : RMS length of the 2-D reprojection errors over the inliers.
-    degrees_of_freedom : 2 × inliers - 6 × cameras - 3 × points + 7.
-    initial_pair : the two frames the reconstruction started from.
-    outlier_threshold_px, outlier_probability : the outlier test.
-    median_point_std : median over points of √(tr Σ / 3), world units (initial baseline = 1).
-    median_centre_std : median over registered cameras of the centre's √(tr Σ_C / 3).
+    points : tracks read; ``reconstructed`` (status ``ok``), ``unreliable``, ``too_few_views``,
+        ``degenerate`` and ``behind_camera`` count them by :class:`~kalmansfm.structure.PointStatus`.
+    observations : measured positions in the frames; ``used`` of them made the estimate and an
+        outlier test ``rejected`` some of the rest.
+    noise_std : σ the covariances are scaled with (pixels, or of unit weight: ``noise_unit``);
+        ``noise_estimated`` when it came from the residuals with ``degrees_of_freedom``;
+        ``noise_model`` names the model.
+    reprojection_rms_px : RMS length of the reprojection errors over the observations used.
+    median_point_std : median over ``ok`` points of √(tr Σ / 3), in the points' unit.
+    median_centre_std : median over registered cameras of the centre's √(tr Σ_C / 3) (estimated poses only).
     covariance_gauge : how the covariances are to be read.
-    camera_choice : with ``--camera auto``, why the perspective model was kept (else None).
+    warnings : the reconstruction's own warnings.
+    singular_values, iterations, weighted, smoothed : factorization: the leading singular values
+        of the measurement matrix, ALS iterations, weighting by the tracker's variances, and
+        whether the tracks were RTS-smoothed (True or the lag).
+    initial_pair, outlier_threshold_px : calibrated: the frames it started from, the outlier threshold.
+    outlier_probability : the χ² gate's probability (fusion and calibrated).
+    orientation, passes : fusion: +1, or -1 for a mirrored scene; passes over the data.
+    intrinsics : calibrated: where K came from (a K.csv, or the focal length and image size).
+    camera_choice : with ``--camera auto``, which model was kept and why.
+    skipped_frames : frames that had observations but no camera (fusion: skipped).
     """
 
+    kind: str
     method: str
-    intrinsics: str
+    camera_model: str
     frames: int
     registered_frames: int
     unregistered: tuple[int, ...]
     points: int
     reconstructed: int
+    unreliable: int
     too_few_views: int
     degenerate: int
+    behind_camera: int
     observations: int
-    inliers: int
-    pixel_std_px: float
-    reprojection_rms_px: float
+    used: int
+    rejected: int
+    noise_std: float | None
+    noise_estimated: bool
+    noise_unit: str
+    noise_model: str
     degrees_of_freedom: int
-    initial_pair: tuple[int, int]
-    outlier_threshold_px: float
-    outlier_probability: float
+    reprojection_rms_px: float | None
     median_point_std: float | None
     median_centre_std: float | None
     covariance_gauge: str
+    warnings: tuple[str, ...] = ()
+    singular_values: tuple[float, ...] = ()
+    iterations: int | None = None
+    weighted: bool | None = None
+    smoothed: bool | int | None = None
+    initial_pair: tuple[int, int] | None = None
+    outlier_threshold_px: float | None = None
+    outlier_probability: float | None = None
+    orientation: int | None = None
+    passes: int | None = None
+    intrinsics: str | None = None
     camera_choice: str | None = None
+    skipped_frames: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -352,10 +303,8 @@ class RunSummary:
     settings : the tracker's settings (runs that tracked).
     smoothed : the tracks were RTS-smoothed (True or the lag) or not.
     tracking : tracking statistics.
-    structure : the factorization's figures.
-    fusion : structure fusion with known cameras (``fuse``).
-    perspective : calibrated reconstruction with unknown motion (``reconstruct --camera perspective``).
-    structure_error : why there is no structure when factorization was attempted and failed.
+    reconstruction : the reconstruction's figures, whatever method made it.
+    structure_error : why there is no reconstruction when one was attempted and failed.
     truth : the comparison with ground truth, when there is one.
     scene : the parameters of a rendered built-in scene.
     timings_s : seconds per step, in order.
@@ -374,9 +323,7 @@ class RunSummary:
     settings: TrackerSettings | None = None
     smoothed: bool | int = False
     tracking: TrackingMetrics | None = None
-    structure: StructureMetrics | None = None
-    fusion: FusionMetrics | None = None
-    perspective: PerspectiveMetrics | None = None
+    reconstruction: ReconstructionMetrics | None = None
     structure_error: str | None = None
     truth: TruthComparison | None = None
     scene: Any = None
@@ -388,9 +335,9 @@ class RunSummary:
 
     @property
     def all_warnings(self) -> tuple[str, ...]:
-        """The run's warnings, then its factorization's: what every command shows the user."""
-        structure = () if self.structure is None else self.structure.warnings
-        return tuple(dict.fromkeys((*self.warnings, *structure)))
+        """The run's warnings, then its reconstruction's: what every command shows the user."""
+        own = () if self.reconstruction is None else self.reconstruction.warnings
+        return tuple(dict.fromkeys((*self.warnings, *own)))
 
     def warning_lines(self) -> list[str]:
         """:attr:`all_warnings` as the commands print them, one ``warning: …`` line each.
@@ -415,7 +362,7 @@ def summary_json(summary: RunSummary) -> str:
     --------
     >>> text = summary_json(RunSummary(command="track", input="clip.mp4"))
     >>> import json; json.loads(text)["schema_version"]
-    3
+    4
     """
     return json.dumps(to_json(summary), indent=2, allow_nan=False) + "\n"
 

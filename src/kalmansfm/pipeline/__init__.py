@@ -18,17 +18,33 @@ command                library call
 from .batch import BatchResult, BatchRow, run_batch
 from .demo import DemoRun, describe, run_demo
 from .fuse import FuseRun, run_fuse
-from .evaluate import compare_with_truth, factorize_tracks, structure_metrics, tracking_metrics
+from .evaluate import compare_with_truth, factorize_tracks, reconstruction_metrics, tracking_metrics
 from .reconstruct import ReconstructRun, read_tracks_for_factorization, run_reconstruct
+from .requests import (
+    Affine,
+    Auto,
+    DemoRequest,
+    FuseRequest,
+    Perspective,
+    ReconstructRequest,
+    TrackRequest,
+)
 from .scene import run_scene
 from .track import TrackRun, run_track
 
 __all__ = [
+    "Affine",
+    "Auto",
     "BatchResult",
     "BatchRow",
+    "DemoRequest",
     "DemoRun",
+    "FuseRequest",
     "FuseRun",
+    "Perspective",
+    "ReconstructRequest",
     "ReconstructRun",
+    "TrackRequest",
     "TrackRun",
     "compare_with_truth",
     "describe",
@@ -40,6 +56,6 @@ __all__ = [
     "run_reconstruct",
     "run_scene",
     "run_track",
-    "structure_metrics",
+    "reconstruction_metrics",
     "tracking_metrics",
 ]

@@ -34,6 +34,7 @@ from ..io.frames import read_frames
 from ..io.summary import SUMMARY_FILE, RunSource, RunSummary, read_summary
 from .cluster import check_cluster, dask_client
 from .demo import demo_source, run_demo
+from .requests import DemoRequest
 
 __all__ = ["BatchRow", "BatchResult", "folder_name", "process_sequence", "run_batch", "SCENE_PREFIX"]
 
@@ -136,7 +137,7 @@ def _parse(spec: str) -> dict[str, Any]:
 
 
 def _row_from_summary(spec: str, out_dir: str, status: str, summary: RunSummary, seconds: float | None) -> BatchRow:
-    t, f = summary.tracking, summary.structure
+    t, f = summary.tracking, summary.reconstruction
     return BatchRow(
         spec,
         out_dir,
@@ -144,7 +145,7 @@ def _row_from_summary(spec: str, out_dir: str, status: str, summary: RunSummary,
         frames=None if t is None else t.frames,
         tracks=None if t is None else t.tracks,
         fraction_tracked=None if t is None else t.measured_fraction,
-        residual_rms_px=None if f is None else f.residual_rms_px,
+        residual_rms_px=None if f is None else f.reprojection_rms_px,
         seconds=seconds,
         error=summary.structure_error,
         warnings=summary.all_warnings,
@@ -169,7 +170,7 @@ def process_sequence(spec: str, out_dir: str, options: dict[str, Any]) -> BatchR
     """
     started = time.perf_counter()
     try:
-        result = run_demo(out_dir, command="batch", **_parse(spec), **options)
+        result = run_demo(DemoRequest(out_dir, command="batch", **_parse(spec), **options))
     except (KalmanSfmError, OSError) as exc:
         return BatchRow(spec, out_dir, "failed", seconds=time.perf_counter() - started, error=str(exc))
     except Exception as exc:  # one broken sequence must not stop the batch
@@ -184,7 +185,7 @@ def _plan(spec: str, folder: Path, options: dict[str, Any]) -> RunSource:
     parsed = _parse(spec)
     sequence = None if parsed["input"] is None else read_frames(parsed["input"])
     check_output_directory(folder, inputs=[parsed["input"]])
-    return demo_source(sequence, seed=parsed.get("seed", 0), **options)
+    return demo_source(DemoRequest(folder, command="batch", **parsed, **options), sequence)
 
 
 def run_batch(
@@ -211,8 +212,8 @@ def run_batch(
     html : build each run's report.html.
     progress : a progress bar over sequences on stderr.
     connect_timeout_s : how long to try to reach ``scheduler``.
-    **pipeline_options : options of :func:`~kalmansfm.pipeline.run_demo` that shape the
-        result (``n_frames``, ``settings``, ``weighted``, ``smooth``, ``save_frames``, …).
+    **pipeline_options : fields of :class:`~kalmansfm.pipeline.requests.DemoRequest` that shape the
+        result (``n_frames``, ``tracker``, ``camera``, ``smooth``, ``save_frames``, …).
 
     Returns
     -------

@@ -1,7 +1,8 @@
-"""What a run measured: tracking statistics, the factorization's figures, and the comparison with ground truth.
+"""What a run measured: tracking statistics, a reconstruction's figures, and the comparison with ground truth.
 
 Each function returns the frozen record that :class:`~kalmansfm.io.summary.RunSummary`
-holds; nothing here writes files.
+holds; nothing here writes files.  Every number the summary and the report show is computed
+here, once.
 """
 
 from __future__ import annotations
@@ -11,13 +12,13 @@ import warnings
 import numpy as np
 
 from ..io.ground_truth import GroundTruth
-from ..io.summary import Similarity, StructureMetrics, TrackingMetrics, TrackMetrics, TruthComparison
-from ..structure import PointUncertainty, Reconstruction, align_similarity, factorize, point_uncertainty
-from ..structure.geometry.orthographic import camera_rotation_matrices, rotation_angle_deg
+from ..io.summary import ReconstructionMetrics, Similarity, TrackingMetrics, TrackMetrics, TruthComparison
+from ..structure import PointStatus, Reconstruction, align_similarity, factorize, rms_std
 from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
+from ..structure.geometry.orthographic import camera_rotation_matrices, rotation_angle_deg
 from ..tracking.tracks import LOST, PREDICTED, Tracks
 
-__all__ = ["compare_with_truth", "factorize_tracks", "structure_metrics", "structure_uncertainty", "tracking_metrics"]
+__all__ = ["compare_with_truth", "factorize_tracks", "reconstruction_metrics", "tracking_metrics"]
 
 
 def _optional(values: np.ndarray, present: np.ndarray) -> tuple[float | None, ...]:
@@ -74,43 +75,94 @@ def factorize_tracks(tracks: Tracks, *, weighted: bool = True, max_iterations: i
     """Factorize the measured positions of ``tracks`` (a coasting prediction is no observation).
 
     With ``weighted`` (and covariances in the tracks) each observation has the least-squares
-    weight 1 / σ², σ the tracker's posterior standard deviation.
+    weight 1 / σ², σ the tracker's posterior standard deviation.  The reconstruction carries
+    the tracks' frame numbers and ids.
     """
     weights = tracks.observation_weights() if weighted else None
-    return factorize(tracks.observations(), weights=weights, max_iterations=max_iterations)
+    rec = factorize(tracks.observations(), weights=weights, max_iterations=max_iterations)
+    return rec.with_ids(tracks.frames, tracks.track_ids)
 
 
-def structure_uncertainty(tracks: Tracks, reconstruction: Reconstruction, *, weighted: bool = True) -> PointUncertainty:
-    """Each point's covariance and status for a reconstruction made by :func:`factorize_tracks` (same ``weighted``)."""
-    weights = tracks.observation_weights() if weighted else None
-    return point_uncertainty(reconstruction, tracks.observations(), weights=weights)
-
-
-def structure_metrics(
-    reconstruction: Reconstruction,
+def reconstruction_metrics(
+    rec: Reconstruction,
     *,
-    weighted: bool,
-    smoothed: bool | int,
-    uncertainty: PointUncertainty | None = None,
-) -> StructureMetrics:
-    """The figures of a factorization (and of its points' uncertainty, when given) for the run summary."""
-    unreliable = 0
-    if uncertainty is not None:
-        unreliable = int((np.isfinite(reconstruction.points).all(axis=1) & ~uncertainty.reliable).sum())
-    return StructureMetrics(
-        method=reconstruction.method,
-        frames=int(reconstruction.motion.shape[0]),
-        points=int(reconstruction.points.shape[0]),
-        reconstructed_frames=int(np.isfinite(reconstruction.motion).all(axis=(1, 2)).sum()),
-        reconstructed_points=int(np.isfinite(reconstruction.points).all(axis=1).sum()),
-        iterations=int(reconstruction.iterations),
-        singular_values=tuple(float(v) for v in reconstruction.singular_values[:10]),
-        residual_rms_px=float(reconstruction.residual_rms),
-        weighted=weighted,
+    smoothed: bool | int | None = None,
+    intrinsics: str | None = None,
+    camera_choice: str | None = None,
+    skipped_frames: tuple[int, ...] = (),
+) -> ReconstructionMetrics:
+    """The run summary's record of any reconstruction.
+
+    Parameters
+    ----------
+    rec : the reconstruction (its ``frame_ids`` are the frame numbers reported).
+    smoothed : whether the tracks it was made from were RTS-smoothed (True or the lag).
+    intrinsics : where a calibrated reconstruction's K came from.
+    camera_choice : with ``--camera auto``, which model was kept and why.
+    skipped_frames : frames with observations but no camera (fusion).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> shape = rng.normal(size=(10, 3)) * 30
+    >>> rows = [np.linalg.qr(rng.normal(size=(3, 3)))[0][:2] for _ in range(5)]
+    >>> rec = factorize(np.stack([shape @ m.T + 50 for m in rows]))
+    >>> m = reconstruction_metrics(rec)
+    >>> m.kind, m.frames, m.reconstructed, m.observations, m.used
+    ('affine', 5, 10, 50, 50)
+    """
+    status = rec.point_status
+    ok, reg = rec.reconstructed, rec.registered
+    details = rec.details
+    noise = rec.noise
+
+    def finite(value: float) -> float | None:
+        return float(value) if np.isfinite(value) else None
+
+    centre_std = None
+    if rec.pose_covariances is not None and reg.any():
+        centre_std = float(np.median(rms_std(rec.pose_covariances[reg, 3:, 3:])))
+    initial_pair = getattr(details, "initial_pair", None)
+    sv = getattr(details, "singular_values", None)
+    return ReconstructionMetrics(
+        kind=rec.kind,
+        method=rec.method,
+        camera_model=rec.camera_model,
+        frames=rec.n_frames,
+        registered_frames=int(reg.sum()),
+        unregistered=tuple(int(f) for f in rec.frame_ids[~reg]),
+        points=rec.n_points,
+        reconstructed=int(ok.sum()),
+        unreliable=int(np.sum(status == PointStatus.UNRELIABLE)),
+        too_few_views=int(np.sum(status == PointStatus.TOO_FEW_VIEWS)),
+        degenerate=int(np.sum(status == PointStatus.DEGENERATE)),
+        behind_camera=int(np.sum(status == PointStatus.BEHIND_CAMERA)),
+        observations=len(rec.observations),
+        used=rec.observations.n_used,
+        rejected=rec.observations.n_rejected,
+        noise_std=finite(noise.std),
+        noise_estimated=noise.estimated,
+        noise_unit=noise.unit,
+        noise_model=noise.model,
+        degrees_of_freedom=int(noise.degrees_of_freedom),
+        reprojection_rms_px=finite(rec.reprojection_rms),
+        median_point_std=float(np.median(rms_std(rec.point_covariances[ok]))) if ok.any() else None,
+        median_centre_std=centre_std,
+        covariance_gauge=rec.covariance_gauge,
+        warnings=tuple(rec.warnings),
+        singular_values=() if sv is None else tuple(float(v) for v in sv[:10]),
+        iterations=getattr(details, "iterations", None),
+        weighted=getattr(details, "weighted", None),
         smoothed=smoothed,
-        warnings=tuple(reconstruction.warnings),
-        noise_std=None if uncertainty is None or not np.isfinite(uncertainty.noise_std) else uncertainty.noise_std,
-        unreliable_points=unreliable,
+        initial_pair=None if initial_pair is None else (int(rec.frame_ids[initial_pair[0]]),
+                                                        int(rec.frame_ids[initial_pair[1]])),
+        outlier_threshold_px=getattr(details, "outlier_threshold_px", None),
+        outlier_probability=getattr(details, "outlier_probability", None),
+        orientation=getattr(details, "orientation", None),
+        passes=getattr(details, "passes", None),
+        intrinsics=intrinsics,
+        camera_choice=camera_choice,
+        skipped_frames=tuple(int(f) for f in skipped_frames),
     )
 
 

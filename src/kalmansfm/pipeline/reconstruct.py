@@ -15,19 +15,18 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from .._validation import check_count
 from .._version import __version__
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_tracks
-from ..structure import PointUncertainty, Reconstruction
-from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
-from ..structure.perspective.reconstruct import PerspectiveReconstruction, PerspectiveSettings, reconstruct_perspective
+from ..structure import Reconstruction
+from ..structure.perspective import reconstruct_perspective
 from ..tracking import Tracks, smooth_tracks
-from .evaluate import factorize_tracks, structure_metrics, structure_uncertainty
-from .perspective import CAMERA_MODELS, perspective_metrics, resolve_intrinsics, stage_perspective
-from .stage import Stopwatch, stage_structure, stage_summary
+from .evaluate import factorize_tracks, reconstruction_metrics
+from .perspective import resolve_intrinsics
+from .requests import Affine, Auto, Perspective, ReconstructRequest, request_options
+from .stage import Stopwatch, stage_reconstruction, stage_summary
 
 __all__ = ["ReconstructRun", "read_tracks_for_factorization", "run_reconstruct"]
 
@@ -36,19 +35,17 @@ log = logging.getLogger("kalmansfm")
 
 @dataclass(frozen=True)
 class ReconstructRun:
-    """The observations used, the reconstruction and the summary of one ``reconstruct`` run.
+    """The observations used, the reconstruction written and the summary of one ``reconstruct`` run.
 
-    ``reconstruction`` is the affine factorization and ``perspective`` the calibrated
-    reconstruction; the one of the camera model written is set (both may be with ``auto``).
-    ``uncertainty`` holds the affine points' covariances and status.
+    ``reconstruction`` is the model written; with an :class:`~kalmansfm.pipeline.requests.Auto`
+    camera ``alternative`` is the other one (None otherwise, or when it was impossible).
     """
 
     out_dir: Path
     tracks: Tracks
-    reconstruction: Reconstruction | None
+    reconstruction: Reconstruction
     summary: RunSummary
-    perspective: PerspectiveReconstruction | None = None
-    uncertainty: PointUncertainty | None = None
+    alternative: Reconstruction | None = None
 
 
 def read_tracks_for_factorization(path: str | os.PathLike[str], *, smooth: bool | None = None) -> Tracks:
@@ -96,46 +93,19 @@ def read_tracks_for_factorization(path: str | os.PathLike[str], *, smooth: bool 
     return tracks
 
 
-def run_reconstruct(
-    tracks_path: str | os.PathLike[str],
-    out_dir: str | os.PathLike[str],
-    *,
-    camera: str = "affine",
-    intrinsics: str | os.PathLike[str] | None = None,
-    focal: float | None = None,
-    image_size: tuple[int, int] | None = None,
-    perspective: PerspectiveSettings | None = None,
-    weighted: bool = True,
-    smooth: bool | None = None,
-    max_iterations: int = DEFAULT_MAX_ITERATIONS,
-    plot: bool = True,
-) -> ReconstructRun:
-    """Reconstruct the tracks of ``tracks_path`` and write the run folder ``out_dir``, all or nothing.
+def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
+    """Reconstruct the tracks of ``request.tracks`` and write the run folder ``request.out``, all or nothing.
 
-    Affine (factorization): structure.csv, structure.ply, motion.csv, structure.png, summary.json.
-    Perspective: structure.csv with covariances and status, cameras.csv, structure.ply with a
-    per-point uncertainty, reconstruction.png (camera path, points coloured by uncertainty),
-    summary.json.
-
-    Every affine point gets its covariance and status in structure.csv
-    (:func:`~kalmansfm.structure.point_uncertainty`); unreliable points are left out of
-    structure.png and counted in the summary's warnings.
+    Every model writes structure.csv (each point with its covariance, views, reprojection RMS and
+    status), structure.ply and summary.json (:func:`~kalmansfm.pipeline.stage.stage_reconstruction`);
+    affine cameras add motion.csv and structure.png (unreliable points left out and counted),
+    perspective ones cameras.csv and reconstruction.png.
 
     Parameters
     ----------
-    tracks_path : ``tracks.npz``, ``tracks.csv`` or a ``frame,track_id,x,y`` CSV.
-    out_dir : the run folder: new, empty or an earlier run, replaced whole when this run succeeds.
-    camera : ``"affine"``, ``"perspective"`` or ``"auto"`` (see the module notes).
-    intrinsics : ``K.csv`` (:mod:`kalmansfm.io.intrinsics`), for perspective and auto …
-    focal : … or the focal length in pixels, principal point at the image centre; the image
-        size is ``image_size`` (width, height) or the one recorded in the tracks file.
-    perspective : :class:`~kalmansfm.structure.perspective.reconstruct.PerspectiveSettings` (method,
-        outlier threshold, …).
-    weighted : factorization: weight observations by 1 / σ² when the file has standard deviations.
-    smooth : see :func:`read_tracks_for_factorization`; the perspective model reads the tracks
-        as they are unless ``smooth`` is True.
-    max_iterations : factorization: cap on the missing-data refinement iterations.
-    plot : draw structure.png / reconstruction.png.
+    request : the tracks, the run folder, the camera (:class:`~kalmansfm.pipeline.requests.Affine`,
+        :class:`~kalmansfm.pipeline.requests.Perspective` or :class:`~kalmansfm.pipeline.requests.Auto`),
+        smoothing and plotting (:class:`~kalmansfm.pipeline.requests.ReconstructRequest`).
 
     Examples
     --------
@@ -144,79 +114,58 @@ def run_reconstruct(
     >>> from kalmansfm.io.tracks import write_tracks_npz
     >>> folder = pathlib.Path(tempfile.mkdtemp())
     >>> _ = write_tracks_npz(report_tracks(), folder / "tracks.npz")
-    >>> run = run_reconstruct(folder / "tracks.npz", folder / "shape", plot=False)
-    >>> round(run.summary.structure.residual_rms_px, 2)
+    >>> run = run_reconstruct(ReconstructRequest(folder / "tracks.npz", folder / "shape", plot=False))
+    >>> round(run.summary.reconstruction.reprojection_rms_px, 2)
     2.88
     """
-    if camera not in CAMERA_MODELS:
-        raise InvalidInputError(f"camera must be one of {', '.join(CAMERA_MODELS)}; got {camera!r}")
-    max_iterations = check_count("max_iterations", max_iterations, 1)
-    inputs = [tracks_path] if camera == "affine" else [tracks_path, intrinsics]
-    check_output_directory(out_dir, inputs=inputs)
+    camera = request.camera
+    perspective = camera if isinstance(camera, Perspective) else camera.perspective if isinstance(camera, Auto) else None
+    affine = camera if isinstance(camera, Affine) else camera.affine if isinstance(camera, Auto) else None
+    inputs = [request.tracks] if perspective is None else [request.tracks, perspective.intrinsics]
+    check_output_directory(request.out, inputs=inputs)
     clock = Stopwatch()
-    name = Path(tracks_path).name
-    if camera == "affine":
-        tracks = read_tracks_for_factorization(tracks_path, smooth=smooth)
+    name = request.tracks.name
+    if perspective is None:
+        tracks = read_tracks_for_factorization(request.tracks, smooth=request.smooth)
     else:
-        tracks = read_tracks_for_factorization(tracks_path, smooth=bool(smooth))
-        K, source = resolve_intrinsics(tracks.frames, intrinsics=intrinsics, focal=focal, image_size=image_size,
-                                       tracks_image_size=tracks.image_size)
-    settings = perspective or PerspectiveSettings()
-    options: dict[str, object] = {"camera": camera, "weighted": weighted, "smooth": smooth,
-                                  "max_iterations": max_iterations, "plot": plot}
-    if camera != "affine":
-        options.update(focal=focal, image_size=image_size, perspective=settings)
-    made_from = run_source(tracks_path, [p for p in inputs if p is not None], options)
-    log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, tracks_path)
-    reconstruction: Reconstruction | None = None
-    uncertainty: PointUncertainty | None = None
-    rec: PerspectiveReconstruction | None = None
-    has_weights = weighted and tracks.covariances is not None
-    if camera in ("affine", "auto"):
+        tracks = read_tracks_for_factorization(request.tracks, smooth=bool(request.smooth))
+        K, source = resolve_intrinsics(tracks.frames, perspective, tracks.image_size)
+    made_from = run_source(request.tracks, [p for p in inputs if p is not None], request_options(request))
+    log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, request.tracks)
+    factorized: Reconstruction | None = None
+    calibrated: Reconstruction | None = None
+    if affine is not None:
         with clock.step("factorization"):
-            reconstruction = factorize_tracks(tracks, weighted=has_weights, max_iterations=max_iterations)
-            uncertainty = structure_uncertainty(tracks, reconstruction, weighted=has_weights)
+            factorized = factorize_tracks(tracks, weighted=affine.weighted and tracks.covariances is not None,
+                                          max_iterations=affine.max_iterations)
     choice = None
-    if camera in ("perspective", "auto"):
+    if perspective is not None:
         with clock.step("perspective reconstruction"):
             try:
-                rec = reconstruct_perspective(tracks.observations(), K, settings=settings)
+                calibrated = reconstruct_perspective(tracks.observations(), K, settings=perspective.settings)
+                calibrated = calibrated.with_ids(tracks.frames, tracks.track_ids)
             except NotEnoughDataError as exc:
-                if camera == "perspective":
+                if affine is None:
                     raise
                 choice = f"affine: the perspective reconstruction was impossible ({exc})"
-    if camera == "auto" and reconstruction is not None and rec is not None:
-        affine_rms = reconstruction.residual_rms
-        if rec.reprojection_rms <= affine_rms:
-            choice = (f"perspective: reprojection RMS {rec.reprojection_rms:.3g} px over its inliers <= the affine "
-                      f"model's {affine_rms:.3g} px")
+    if factorized is not None and calibrated is not None:
+        affine_rms, rms = factorized.reprojection_rms, calibrated.reprojection_rms
+        if rms <= affine_rms:
+            choice = f"perspective: reprojection RMS {rms:.3g} px over its inliers <= the affine model's {affine_rms:.3g} px"
         else:
-            choice = (f"affine: reprojection RMS {affine_rms:.3g} px < the perspective model's "
-                      f"{rec.reprojection_rms:.3g} px over its inliers")
-    use_perspective = rec is not None and (camera == "perspective" or (choice or "").startswith("perspective"))
-    if use_perspective:
-        assert rec is not None
-        summary = RunSummary(command="reconstruct", input=str(tracks_path), source=made_from,
-                             settings=tracks.settings, smoothed=tracks.smoothed,
-                             perspective=perspective_metrics(rec, tracks.observations(), tracks.frames, source,
-                                                             settings, camera_choice=choice),
-                             warnings=rec.warnings)
-    else:
-        assert reconstruction is not None and uncertainty is not None
-        summary = RunSummary(command="reconstruct", input=str(tracks_path), source=made_from,
-                             settings=tracks.settings, smoothed=tracks.smoothed,
-                             structure=structure_metrics(reconstruction, weighted=has_weights, smoothed=tracks.smoothed,
-                                                         uncertainty=uncertainty),
-                             warnings=(*(() if choice is None else (f"--camera auto chose {choice}",)),
-                                       *uncertainty.warnings))
-    with output_directory(out_dir, inputs=inputs) as out:
+            choice = f"affine: reprojection RMS {affine_rms:.3g} px < the perspective model's {rms:.3g} px over its inliers"
+    use_perspective = calibrated is not None and (affine is None or (choice or "").startswith("perspective"))
+    chosen = calibrated if use_perspective else factorized
+    other = factorized if use_perspective else calibrated
+    assert chosen is not None
+    metrics = reconstruction_metrics(chosen, smoothed=tracks.smoothed if chosen.kind == "affine" else None,
+                                     intrinsics=source if use_perspective else None,
+                                     camera_choice=choice if use_perspective else None)
+    warnings = () if use_perspective or choice is None else (f"camera model chosen automatically: {choice}",)
+    summary = RunSummary(command="reconstruct", input=str(request.tracks), source=made_from, settings=tracks.settings,
+                         smoothed=tracks.smoothed, reconstruction=metrics, warnings=warnings)
+    with output_directory(request.out, inputs=inputs) as out:
         with clock.step("writing"):
-            if use_perspective:
-                names = stage_perspective(out, rec, tracks.frames, tracks.track_ids, K,  # type: ignore[arg-type]
-                                          comment=f"kalmansfm {__version__} from {name}", plot=plot)
-            else:
-                names = stage_structure(out, reconstruction, tracks.track_ids,  # type: ignore[arg-type]
-                                        uncertainty=uncertainty,  # type: ignore[arg-type]
-                                        frames=tracks.frames, comment=f"kalmansfm {__version__} from {name}", plot=plot)
+            names = stage_reconstruction(out, chosen, comment=f"kalmansfm {__version__} from {name}", plot=request.plot)
         summary = stage_summary(out, summary, clock, names)
-    return ReconstructRun(Path(out_dir), tracks, reconstruction, summary, rec, uncertainty)
+    return ReconstructRun(request.out, tracks, chosen, summary, other)

@@ -15,15 +15,22 @@ from dataclasses import replace
 import numpy as np
 
 from ..io.atomic import OutputDirectory
+from ..io.cameras import pose_cameras_csv
+from ..io.fusion import history_csv, rejected_csv
 from ..io.structure import motion_csv, structure_csv, structure_ply
 from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
 from ..io.tracks import write_tracks_csv, write_tracks_npz
 from ..report.drawing import tracks_gif, tracks_overview_png
-from ..report.figures import covariance_trace_figure, shape_views_figure
-from ..structure import PointUncertainty, Reconstruction, rms_std
+from ..report.figures import (
+    camera_path_figure,
+    covariance_trace_figure,
+    fusion_convergence_figure,
+    shape_views_figure,
+)
+from ..structure import Reconstruction, rms_std
 from ..tracking.tracks import Tracks
 
-__all__ = ["Stopwatch", "stage_points", "stage_structure", "stage_summary", "stage_tracking"]
+__all__ = ["Stopwatch", "stage_reconstruction", "stage_summary", "stage_tracking"]
 
 
 class Stopwatch:
@@ -84,51 +91,76 @@ def stage_tracking(
     return names
 
 
-def stage_structure(
-    out: OutputDirectory,
-    reconstruction: Reconstruction,
-    track_ids: np.ndarray,
-    *,
-    uncertainty: PointUncertainty,
-    frames: np.ndarray | None = None,
-    comment: str = "kalmansfm reconstruction",
-    plot: bool = True,
-) -> list[str]:
-    """Stage the factorization's files: structure.csv, structure.ply, motion.csv (and structure.png).
+def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: str, plot: bool = True) -> list[str]:
+    """Stage the files of any reconstruction and return their names.
 
-    structure.csv carries each point's covariance, views, reprojection RMS and status from
-    ``uncertainty``, structure.ply each point's ``uncertainty`` (√(tr Σ / 3), pixels), and
-    structure.png leaves the unreliable points out (and says how many).  ``frames`` are
-    the frame numbers written in motion.csv (default 0, 1, …); ``comment`` goes into the
-    PLY header.
+    Every reconstruction: ``structure.csv`` (each track's point, covariance, views, reprojection
+    RMS and status) and ``structure.ply`` (each point's ``uncertainty`` √(tr Σ / 3); the header
+    says how the covariances are to be read).  Then what its data hold:
+
+    * affine cameras: ``motion.csv`` (camera rows and image translation per frame) and
+      ``structure.png`` (the reliable points; the unreliable ones are counted);
+    * estimated pinhole cameras (with pose covariances): ``cameras.csv`` (K, R, t of the registered
+      frames, with ``rotation_std_deg`` and ``centre_std``) and ``reconstruction.png`` (camera path,
+      points coloured by uncertainty);
+    * a fusion history: ``history.csv`` and ``fusion.png`` (uncertainty against views);
+      observations rejected by a fusion's outlier test: ``rejected.csv``.
+
+    ``comment`` goes into the PLY header.
     """
-    stage_points(out, track_ids, reconstruction.points, uncertainty.covariances, uncertainty.views,
-                 uncertainty.status, uncertainty.reprojection_rms, comment=comment)
-    if frames is None:
-        frames = np.arange(reconstruction.motion.shape[0])
-    out.write_text("motion.csv", motion_csv(frames, reconstruction.motion, reconstruction.translation))
-    names = ["structure.csv", "structure.ply", "motion.csv"]
-    finite = np.isfinite(reconstruction.points).all(axis=1)
-    shown = finite & uncertainty.reliable
-    if plot and shown.any():
-        out.write_bytes("structure.png", shape_views_figure(reconstruction.points[shown], track_ids[shown].tolist(),
-                                                           hidden=int((finite & ~shown).sum())))
-        names.append("structure.png")
+    frames, ids = rec.frame_ids, rec.track_ids
+    out.write_text("structure.csv", structure_csv(ids, rec.points, covariances=rec.point_covariances, views=rec.views,
+                                                  status=rec.point_status,
+                                                  reprojection_rms=rec.point_reprojection_rms))
+    out.write_text("structure.ply", structure_ply(ids, rec.points, comment=f"{comment}; covariances in the "
+                                                  f"{rec.covariance_gauge}",
+                                                  properties={"uncertainty": rms_std(rec.point_covariances)}))
+    names = ["structure.csv", "structure.ply"]
+    registered = rec.registered
+    if rec.camera_model == "affine":
+        out.write_text("motion.csv", motion_csv(frames, rec.motion, rec.image_translation))
+        names.append("motion.csv")
+        estimated = rec.estimated
+        shown = estimated & rec.reconstructed
+        if plot and shown.any():
+            out.write_bytes("structure.png", shape_views_figure(rec.points[shown], ids[shown].tolist(),
+                                                               hidden=int((estimated & ~shown).sum())))
+            names.append("structure.png")
+    elif rec.pose_covariances is not None:
+        out.write_text("cameras.csv", pose_cameras_csv(
+            frames[registered], rec.intrinsics[registered], rec.rotations[registered], rec.translations[registered],
+            rotation_std_deg=np.degrees(rms_std(rec.pose_covariances[registered, :3, :3])),
+            centre_std=rms_std(rec.pose_covariances[registered, 3:, 3:])))
+        names.append("cameras.csv")
+        ok = rec.reconstructed
+        if plot and ok.any() and registered.any():
+            out.write_bytes("reconstruction.png", camera_path_figure(
+                rec.centres[registered], frames[registered].tolist(), rec.points[ok], rec.point_std[ok]))
+            names.append("reconstruction.png")
+    history = getattr(rec.details, "history", None)
+    if history is not None:
+        out.write_text("history.csv", history_csv(rec))
+        names.append("history.csv")
+    if rec.kind == "fusion":
+        out.write_text("rejected.csv", rejected_csv(rec))
+        names.append("rejected.csv")
+    figure = _convergence_png(history) if plot and history is not None else None
+    if figure is not None:
+        out.write_bytes("fusion.png", figure)
+        names.append("fusion.png")
     return names
 
 
-def stage_points(out: OutputDirectory, track_ids: np.ndarray, points: np.ndarray, covariances: np.ndarray,
-                 views: np.ndarray, status: np.ndarray, reprojection_rms: np.ndarray, *, comment: str) -> list[str]:
-    """Stage structure.csv (every track with its covariance, views, RMS and status) and structure.ply.
-
-    The one way every command writes its points (:mod:`kalmansfm.io.structure`); the PLY
-    gives each vertex its ``uncertainty``, √(tr Σ / 3).
-    """
-    out.write_text("structure.csv", structure_csv(track_ids, points, covariances=covariances, views=views,
-                                                  status=status, reprojection_rms=reprojection_rms))
-    out.write_text("structure.ply", structure_ply(track_ids, points, comment=comment,
-                                                  properties={"uncertainty": rms_std(covariances)}))
-    return ["structure.csv", "structure.ply"]
+def _convergence_png(history) -> bytes | None:
+    """fusion.png: uncertainty against the number of views behind each history entry."""
+    if len(history) == 0:
+        return None
+    order = np.lexsort((history.views, history.points))
+    points = history.points[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(points)) + 1]
+    ordinal = np.arange(points.size) - np.repeat(starts, np.diff(np.r_[starts, points.size]))
+    # the k-th estimate of a point rests on k + 2 observations (its first comes from two views)
+    return fusion_convergence_figure(ordinal + 2, rms_std(history.covariances[order]), points)
 
 
 def stage_summary(out: OutputDirectory, summary: RunSummary, clock: Stopwatch, files: list[str]) -> RunSummary:

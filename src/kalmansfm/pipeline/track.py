@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from .._validation import check_count
 from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import check_points_inside, read_points_csv
-from ..tracking import TrackerSettings, Tracks, smooth_tracks, track
+from ..tracking import Tracks, smooth_tracks, track
 from .evaluate import tracking_metrics
+from .requests import TrackRequest, request_options
 from .stage import Stopwatch, stage_summary, stage_tracking
 
 __all__ = ["TrackRun", "run_track"]
@@ -27,26 +26,15 @@ class TrackRun:
     summary: RunSummary
 
 
-def run_track(
-    input: str | os.PathLike[str],
-    out_dir: str | os.PathLike[str],
-    *,
-    points: str | os.PathLike[str] | None = None,
-    settings: TrackerSettings | None = None,
-    smooth: bool | int = False,
-    progress: bool = False,
-) -> TrackRun:
-    """Track points through ``input`` and write tracks.csv, tracks.npz, the pictures and summary.json to ``out_dir``.
+def run_track(request: TrackRequest) -> TrackRun:
+    """Track points through ``request.input`` and write tracks.csv, tracks.npz, the pictures and summary.json.
 
     Parameters
     ----------
-    input : a folder of images (natural order), a glob or a video.
-    out_dir : the run folder: new, empty or an earlier run, which is replaced whole when this
-        run succeeds (:func:`~kalmansfm.io.output_directory`).
-    points : a CSV with ``x,y[,track_id]`` of frame-0 points; None detects corners.
-    settings : the tracker's settings (default settings when None).
-    smooth : False, True (fixed-interval RTS smoothing) or a lag L (fixed-lag smoothing).
-    progress : a progress bar on stderr.
+    request : the input (a folder of images in natural order, a glob or a video), the run folder
+        (new, empty or an earlier run, replaced whole when this run succeeds), the frame-0 points
+        (None: detect corners), the tracker's settings and smoothing
+        (:class:`~kalmansfm.pipeline.requests.TrackRequest`).
 
     Examples
     --------
@@ -54,32 +42,31 @@ def run_track(
     >>> from kalmansfm.scenes import render_scene, write_scene
     >>> base = pathlib.Path(tempfile.mkdtemp())
     >>> _ = write_scene(render_scene(n_frames=5), base / "scene")
-    >>> run = run_track(base / "scene", base / "tracks", points=base / "scene" / "points.csv")
+    >>> run = run_track(TrackRequest(base / "scene", base / "tracks", points=base / "scene" / "points.csv"))
     >>> run.summary.tracking.frames, "tracks.npz" in run.summary.files
     (5, True)
     """
-    if not isinstance(smooth, bool):
-        smooth = check_count("smooth", smooth, 0)  # a lag in frames, checked before any decoding
-    check_output_directory(out_dir, inputs=[input, points])
+    inputs = [request.input, request.points]
+    check_output_directory(request.out, inputs=inputs)
     clock = Stopwatch()
-    sequence = read_frames(input)
+    sequence = read_frames(request.input)
     start = track_ids = lines = None
-    if points is not None:
-        start, track_ids, lines = read_points_csv(points, with_lines=True)
-    source = run_source(input, [*sequence.paths, *([points] if points is not None else [])],
-                        {"settings": settings or TrackerSettings(), "smooth": smooth})
+    if request.points is not None:
+        start, track_ids, lines = read_points_csv(request.points, with_lines=True)
+    source = run_source(request.input, [*sequence.paths, *([request.points] if request.points is not None else [])],
+                        request_options(request))
     with clock.step("tracking"):  # decoding included, as when the tracker read the frames lazily
         frames = list(sequence)  # decoded once: tracked, then drawn (tracks.png, tracks.gif)
-        if points is not None:
-            check_points_inside(start, frames[0].shape[1], frames[0].shape[0], str(points), lines)
-        tracks = track(frames, start, track_ids=track_ids, settings=settings, progress=progress)
-    if smooth is not False:
+        if request.points is not None:
+            check_points_inside(start, frames[0].shape[1], frames[0].shape[0], str(request.points), lines)
+        tracks = track(frames, start, track_ids=track_ids, settings=request.settings, progress=request.progress)
+    if request.smooth is not False:
         with clock.step("smoothing"):
-            tracks = smooth_tracks(tracks, lag=None if smooth is True else int(smooth))
-    summary = RunSummary(command="track", input=str(input), source=source, settings=tracks.settings,
+            tracks = smooth_tracks(tracks, lag=None if request.smooth is True else int(request.smooth))
+    summary = RunSummary(command="track", input=str(request.input), source=source, settings=tracks.settings,
                          smoothed=tracks.smoothed, tracking=tracking_metrics(tracks))
-    with output_directory(out_dir, inputs=[input, points]) as out:
+    with output_directory(request.out, inputs=inputs) as out:
         with clock.step("writing"):
             names = stage_tracking(out, tracks, frames, last_frame=frames[-1])
         summary = stage_summary(out, summary, clock, names)
-    return TrackRun(Path(out_dir), tracks, summary)
+    return TrackRun(request.out, tracks, summary)

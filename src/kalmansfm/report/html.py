@@ -9,13 +9,11 @@ when its inputs exist.
 
 from __future__ import annotations
 
-import base64
 import datetime as _dt
-import html
 import json
 import logging
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -33,6 +31,8 @@ from ..io.summary import SUMMARY_FILE, RunSummary
 from ..structure.geometry.orthographic import camera_rotation_matrices
 from ..structure.points import rms_std
 from . import figures
+from . import markup as m
+from .reconstruction import reconstruction_cards, section_reconstruction
 from ._assets import CSS, ERROR_TRAP_JS, JS
 from .drawing import gate_radius_of, render_tracked_frames, track_colors
 
@@ -49,112 +49,6 @@ MAX_PLAYER_FRAMES = 120
 #: ... and fewer if their PNGs would take more than this many bytes.
 MAX_PLAYER_BYTES = 8_000_000
 
-_esc = html.escape
-
-
-# --- small formatting helpers ------------------------------------------------
-
-
-def _data_uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-
-
-def _img(png: bytes, alt: str, *, css_class: str = "", width: int | None = None) -> str:
-    attrs = f' class="{css_class}"' if css_class else ""
-    if width:
-        attrs += f' width="{width}"'
-    return f'<img src="{_data_uri(png)}" alt="{_esc(alt)}"{attrs}>'
-
-
-def _figure(png: bytes, caption: str, alt: str | None = None) -> str:
-    return f"<figure>{_img(png, alt or caption)}<figcaption>{caption}</figcaption></figure>"
-
-
-def _number(value: Any, digits: int = 4) -> str:
-    """A value for a table cell: None → an em dash, floats to ``digits`` significant digits."""
-    if value is None:
-        return "—"
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "—"
-        return f"{value:.{digits}g}"
-    if isinstance(value, (list, tuple)):
-        return ", ".join(_number(v, digits) for v in value)
-    if isinstance(value, dict):
-        return _esc(json.dumps(value))
-    return _esc(str(value))
-
-
-def _percent(value: Any) -> str:
-    return "—" if not isinstance(value, (int, float)) or isinstance(value, bool) else f"{100 * value:.1f} %"
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-class _Html(str):
-    """Markup that a table cell inserts as it is (already escaped)."""
-
-
-def _is_empty(value: Any) -> bool:
-    return value is None or (isinstance(value, float) and math.isnan(value))
-
-
-def _table(
-    header: Sequence[str],
-    rows: Iterable[Sequence[Any]],
-    *,
-    sortable: bool = False,
-    numeric: Sequence[bool] = (),
-    fold: int | None = None,
-    drop_empty: bool = False,
-) -> str:
-    """An HTML table.
-
-    With ``fold`` a table longer than that shows its first ``fold`` rows and a button for
-    the rest (the page script folds it; without script every row shows).  With
-    ``drop_empty`` a column empty in every row (an em dash throughout) is left out.
-    """
-    rows = [list(row) for row in rows]
-    if drop_empty and rows:
-        keep = [k for k in range(len(header)) if not all(_is_empty(row[k]) for row in rows)]
-        header = [header[k] for k in keep]
-        numeric = [numeric[k] for k in keep if k < len(numeric)]
-        rows = [[row[k] for k in keep] for row in rows]
-    folded = fold is not None and len(rows) > fold
-    classes = [name for name, on in (("sortable", sortable), ("folded", folded)) if on]
-    css = f' class="{" ".join(classes)}"' if classes else ""
-    fold_attr = f' data-fold="{fold}"' if folded else ""
-    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
-    body = []
-    for row in rows:
-        cells = []
-        for k, value in enumerate(row):
-            is_num = numeric[k] if k < len(numeric) else _is_number(value)
-            sort_key = f' data-sort="{value}"' if _is_number(value) else ""
-            css_cell = ' class="num"' if is_num else ""
-            cells.append(f"<td{css_cell}{sort_key}>{value if isinstance(value, _Html) else _number(value)}</td>")
-        body.append("<tr>" + "".join(cells) + "</tr>")
-    table = f"<table{css}{fold_attr}><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
-    if fold_attr:
-        table += (f'<p class="note"><button type="button" class="fold-toggle">show all {len(rows)} rows</button> '
-                  f"(the first {fold} are shown; sorting sorts all)</p>")
-    return table
-
-
-def _cards(items: Sequence[tuple[str, str]]) -> str:
-    cards = "".join(
-        f'<div class="card"><div class="value">{value}</div><div class="label">{_esc(label)}</div></div>'
-        for label, value in items
-    )
-    return f'<div class="cards">{cards}</div>'
-
-
 def _total_seconds(summary: RunSummary) -> float | None:
     if summary.total_s is not None and math.isfinite(summary.total_s):
         return summary.total_s
@@ -166,45 +60,33 @@ def _total_seconds(summary: RunSummary) -> float | None:
 
 def _section_header(run: RunFolder) -> str:
     s = run.summary
-    tracking, structure, truth = s.tracking, s.structure, s.truth
+    tracking, truth = s.tracking, s.truth
     cards = []
     if tracking is not None:
-        cards.append(("frames", _number(tracking.frames)))
-        cards.append(("tracks", _number(tracking.tracks)))
-        cards.append(("of track-frames measured", _percent(tracking.measured_fraction)))
-    if truth is not None and _is_number(truth.tracking_rms_error_px):
+        cards.append(("frames", m.number(tracking.frames)))
+        cards.append(("tracks", m.number(tracking.tracks)))
+        cards.append(("of track-frames measured", m.percent(tracking.measured_fraction)))
+    if truth is not None and m.is_number(truth.tracking_rms_error_px):
         cards.append(("tracking RMS error vs truth", f"{truth.tracking_rms_error_px:.2f} px"))
-    if truth is not None and _is_number(truth.within_2px):
-        cards.append(("estimates within 2 px of truth", _percent(truth.within_2px)))
-    if structure is not None and _is_number(structure.residual_rms_px):
-        cards.append(("factorization residual RMS", f"{structure.residual_rms_px:.3g} px"))
-    fusion = s.fusion
-    if fusion is not None:
-        cards.append(("points fused", f"{fusion.fused} of {fusion.points}"))
-        cards.append(("pixel noise σ" + (" (estimated)" if fusion.pixel_std_estimated else ""),
-                      f"{fusion.pixel_std_px:.3g} px"))
-        cards.append(("observations rejected", f"{fusion.rejected} of {fusion.observations}"))
-    perspective = s.perspective
-    if perspective is not None:
-        cards.append(("frames registered", f"{perspective.registered_frames} of {perspective.frames}"))
-        cards.append(("points reconstructed", f"{perspective.reconstructed} of {perspective.points}"))
-        cards.append(("reprojection RMS", f"{perspective.reprojection_rms_px:.3g} px"))
-        cards.append(("pixel noise σ (estimated)", f"{perspective.pixel_std_px:.3g} px"))
-    if truth is not None and _is_number(truth.shape_error_pct):
+    if truth is not None and m.is_number(truth.within_2px):
+        cards.append(("estimates within 2 px of truth", m.percent(truth.within_2px)))
+    if s.reconstruction is not None:
+        cards += reconstruction_cards(s.reconstruction)
+    if truth is not None and m.is_number(truth.shape_error_pct):
         cards.append(("3D shape error vs truth", f"{truth.shape_error_pct:.2f} %"))
     total = _total_seconds(s)
     if total is not None:
         cards.append(("time taken", f"{total:.2f} s"))
-    warnings = "".join(f'<p class="warn">{_esc(w)}</p>' for w in s.warnings)
+    warnings = "".join(f'<p class="warn">{m.esc(w)}</p>' for w in s.all_warnings)
     meta = [
-        f"input: <strong>{_esc(s.input)}</strong>",
-        f"kalmansfm {_esc(s.versions.kalmansfm)}",
-        f"run created {_esc(s.created)}",
+        f"input: <strong>{m.esc(s.input)}</strong>",
+        f"kalmansfm {m.esc(s.versions.kalmansfm)}",
+        f"run created {m.esc(s.created)}",
     ]
-    command = f'<p class="meta">command: <code>{_esc(s.command)}</code></p>'
+    command = f'<p class="meta">command: <code>{m.esc(s.command)}</code></p>'
     return (
         f'<header><div class="wrap"><h1>kalmansfm report</h1><p class="meta">{" · ".join(meta)}</p>'
-        f"{command}{_cards(cards) if cards else ''}{warnings}</div></header>"
+        f"{command}{m.cards(cards) if cards else ''}{warnings}</div></header>"
     )
 
 
@@ -219,8 +101,8 @@ def _settings_rows(run: RunFolder) -> list[tuple[str, Any]]:
                 full = np.asarray(entries, dtype=float)
                 square = full.shape[0] == full.shape[1]
                 diagonal = square and np.array_equal(full, np.diag(np.diagonal(full)))
-                shown = f"diag({_number(np.diagonal(full).tolist())})" if diagonal else _number(entries)
-                rows.append((f"model {matrix}", _Html(_esc(shown))))
+                shown = f"diag({m.number(np.diagonal(full).tolist())})" if diagonal else m.number(entries)
+                rows.append((f"model {matrix}", m.Html(m.esc(shown))))
         else:
             rows.append((name, value))
     rows.append(("gate radius c (used)", settings.effective_gate_radius))
@@ -235,13 +117,13 @@ def _section_parameters(run: RunFolder) -> str | None:
         return None
     parts = ['<div class="two">']
     if rows:
-        parts.append("<div><h3>Tracker settings</h3>" + _table(["name", "value"], rows) + "</div>")
+        parts.append("<div><h3>Tracker settings</h3>" + m.table(["name", "value"], rows) + "</div>")
     if timings:
-        table_rows: list[Sequence[Any]] = [(step, _Html(f"{seconds:.3f}")) for step, seconds in timings]
+        table_rows: list[Sequence[Any]] = [(step, m.Html(f"{seconds:.3f}")) for step, seconds in timings]
         total = _total_seconds(run.summary)
         if total is not None:
-            table_rows.append((_Html("<strong>total (the whole run)</strong>"), _Html(f"{total:.3f}")))
-        parts.append("<div><h3>Time per step (s)</h3>" + _table(["step", "seconds"], table_rows, numeric=[False, True]) + "</div>")
+            table_rows.append((m.Html("<strong>total (the whole run)</strong>"), m.Html(f"{total:.3f}")))
+        parts.append("<div><h3>Time per step (s)</h3>" + m.table(["step", "seconds"], table_rows, numeric=[False, True]) + "</div>")
     parts.append("</div>")
     return "".join(parts)
 
@@ -267,7 +149,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
         # frames without tracks: just the strip of raw frames
         picks = np.unique(np.linspace(0, len(frames) - 1, min(STRIP_FRAMES, len(frames))).round().astype(int))
         strip = "".join(
-            f"<figure>{_img(encode_png(frames[f]), f'frame {f}')}<figcaption>frame {f}</figcaption></figure>"
+            f"<figure>{m.img(encode_png(frames[f]), f'frame {f}')}<figcaption>frame {f}</figcaption></figure>"
             for f in picks
         )
         return f'<p class="note">No tracks.npz in this run; the frames alone.</p><div class="strip">{strip}</div>'
@@ -282,7 +164,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
 
     def draw(f: int) -> str:
         (image,) = render_tracked_frames(frames or None, tracks, [f])
-        return _data_uri(encode_png(image))
+        return m.data_uri(encode_png(image))
 
     rendered = {f: draw(f) for f in strip_indices}
     # the player's size budget, from the size of the frames drawn so far
@@ -308,7 +190,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
             '<button id="player-next" type="button">▶</button>'
             f'<input id="player-slider" type="range" min="0" max="{len(player_indices) - 1}" value="0" '
             'aria-label="frame">'
-            f'<span id="player-label">frame {player_indices[0]}</span>{_esc(stride_note)}</div>'
+            f'<span id="player-label">frame {player_indices[0]}</span>{m.esc(stride_note)}</div>'
             f'<img id="player-image" src="{rendered[player_indices[0]]}" alt="tracked frame"></div>'
             f'<script type="application/json" id="player-frames">{payload}</script>'
         )
@@ -319,19 +201,19 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
     parts.append(f'<h3>Frame strip</h3><div class="strip">{strip}</div>')
     parts.append(_legend(gate_radius_of(tracks), tracks.settings is not None))
     if background or gate_note:
-        parts.append(f'<p class="note">{_esc(background + gate_note)}</p>')
+        parts.append(f'<p class="note">{m.esc(background + gate_note)}</p>')
     return "".join(parts)
 
 
 def _section_uncertainty(run: RunFolder) -> str | None:
     parts = []
     if "covariance_trace.png" in run.figures:
-        parts.append(_figure(run.figures["covariance_trace.png"].read_bytes(), "Covariance trace per frame (from the run)."))
+        parts.append(m.figure(run.figures["covariance_trace.png"].read_bytes(), "Covariance trace per frame (from the run)."))
     elif run.tracks is not None:
         png = figures.covariance_trace_figure(run.tracks)
         if png is not None:
             parts.append(
-                _figure(
+                m.figure(
                     png,
                     "Trace of the 4×4 state covariance per frame: mean and range over the tracks the filter "
                     "estimates. A track's first two frames (initialising, shaded while every track starts) carry "
@@ -341,7 +223,7 @@ def _section_uncertainty(run: RunFolder) -> str | None:
             )
     if run.tracks is not None:
         parts.append(
-            _figure(
+            m.figure(
                 figures.status_timeline_figure(run.tracks),
                 "Status of every track in every frame: initialising (its first two frames), measured, "
                 "predicted (coasting) or lost.",
@@ -350,7 +232,7 @@ def _section_uncertainty(run: RunFolder) -> str | None:
         survival = figures.survival_figure(run.tracks)
         if survival is not None:
             parts.append(
-                _figure(
+                m.figure(
                     survival,
                     "Survival: the share of the first frame's tracks measured (solid) or alive (dashed) in each "
                     "frame, and every track's life from its first to its last measured frame, sorted by length.",
@@ -378,7 +260,7 @@ def _section_tracks(run: RunFolder) -> str | None:
                 ("RMS error vs ground truth (px)", truth.tracking_rms_error_px),
                 ("fraction within 2 px of ground truth", truth.within_2px),
             ]
-        parts.append(_table(["", "value"], [r for r in rows if r[1] is not None]))
+        parts.append(m.table(["", "value"], [r for r in rows if r[1] is not None]))
     if tracking is not None and tracking.per_track:
         ids = [row.track_id for row in tracking.per_track]
         colors = track_colors(ids)
@@ -387,7 +269,7 @@ def _section_tracks(run: RunFolder) -> str | None:
         rows = []
         for k, row in enumerate(tracking.per_track):
             swatch = f'<span class="swatch" style="background:{colors[k]}"></span>'
-            cells = [_Html(f"{swatch}{row.track_id}"), row.frames_measured, row.frames_predicted, row.lost_at,
+            cells = [m.Html(f"{swatch}{row.track_id}"), row.frames_measured, row.frames_predicted, row.lost_at,
                      row.mean_std_px, errors[k] if k < len(errors) else None]
             rows.append(cells)
         parts.append("<h3>Per track</h3>")
@@ -396,48 +278,10 @@ def _section_tracks(run: RunFolder) -> str | None:
             "drawings of the frames and in the plots of the shape. Measured frames include the two "
             "initialising ones; the mean std leaves them out (their covariance is the start-up prior).</p>"
         )
-        parts.append(_table(header, rows, sortable=True, numeric=[True] * len(header), fold=TABLE_ROWS, drop_empty=True))
+        parts.append(m.table(header, rows, sortable=True, numeric=[True] * len(header), fold=TABLE_ROWS, drop_empty=True))
     if "tracks.png" in run.figures:
-        parts.append(_figure(run.figures["tracks.png"].read_bytes(), "The tracks over the last frame (from the run)."))
+        parts.append(m.figure(run.figures["tracks.png"].read_bytes(), "The tracks over the last frame (from the run)."))
     return "".join(parts) or None
-
-
-def _section_factorization(run: RunFolder) -> str | None:
-    structure = run.summary.structure
-    if structure is None:
-        if run.summary.structure_error:
-            return f'<p class="warn">Not computed: {_esc(run.summary.structure_error)}</p>'
-        return None
-    parts = []
-    numbers = [float(v) for v in structure.singular_values if _is_number(v)]
-    facts: list[tuple[str, Any]] = [
-        ("method", structure.method),
-        ("residual RMS after the rank-3 fit (px)", structure.residual_rms_px),
-        ("weighted by the tracker's variances", structure.weighted),
-        ("smoothed tracks", structure.smoothed),
-    ]
-    if len(numbers) >= 4 and numbers[3] > 0:
-        facts.append(("σ3 / σ4 (large = clearly rank 3)", numbers[2] / numbers[3]))
-    parts.append(_table(["", "value"], facts))
-    for warning in structure.warnings:
-        parts.append(f'<p class="warn">{_esc(warning)}</p>')
-    if numbers:
-        shown = numbers[:12]
-        parts.append('<div class="two">')
-        parts.append(
-            _figure(
-                figures.singular_values_figure(numbers),
-                "Singular values of the registered measurement matrix. Noise-free orthographic tracks "
-                "have rank 3; the values after the third measure noise and model error.",
-            )
-        )
-        parts.append(
-            "<div>"
-            + _table(["k", "σk"], [(k + 1, v) for k, v in enumerate(shown)])
-            + (f'<p class="note">{len(numbers) - len(shown)} more not listed.</p>' if len(numbers) > len(shown) else "")
-            + "</div></div>"
-        )
-    return "".join(parts)
 
 
 def _by_uncertainty(run: RunFolder) -> bool:
@@ -445,7 +289,9 @@ def _by_uncertainty(run: RunFolder) -> bool:
 
     A factorization's points keep their tracks' colours, so that a point can be found in the player.
     """
-    return run.structure is not None and run.structure.covariances is not None and run.summary.structure is None
+    r = run.summary.reconstruction
+    return (run.structure is not None and run.structure.covariances is not None
+            and (r is None or r.kind != "affine"))
 
 
 def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray | None,
@@ -503,7 +349,7 @@ def _section_shape(run: RunFolder, motion_rotations: np.ndarray | None) -> str |
     structure = run.structure
     if structure is None or not len(structure.points):
         if "structure.png" in run.figures:
-            return _figure(run.figures["structure.png"].read_bytes(), "Recovered structure (from the run).")
+            return m.figure(run.figures["structure.png"].read_bytes(), "Recovered structure (from the run).")
         return None
     parts = []
     matched = _matched_truth(run)
@@ -537,7 +383,7 @@ def _section_shape(run: RunFolder, motion_rotations: np.ndarray | None) -> str |
         views = structure.views[~structure.reliable]  # type: ignore[index]
         parts.append(
             f'<p class="warn">{unreliable} of {len(structure.track_ids)} points are unreliable (marked in '
-            f"structure.csv; seen in {_number(int(views.min()))}–{_number(int(views.max()))} frames): their depth "
+            f"structure.csv; seen in {m.number(int(views.min()))}–{m.number(int(views.max()))} frames): their depth "
             "is barely constrained by the frames that saw them. They are left out of the plots; the box below "
             "shows them in the interactive view.</p>"
         )
@@ -551,11 +397,11 @@ def _section_shape(run: RunFolder, motion_rotations: np.ndarray | None) -> str |
         "<noscript><p class='note'>The interactive view needs JavaScript; the fixed views follow.</p></noscript>"
     )
     if "structure.png" in run.figures:
-        parts.append(_figure(run.figures["structure.png"].read_bytes(), "Recovered structure (from the run)."))
+        parts.append(m.figure(run.figures["structure.png"].read_bytes(), "Recovered structure (from the run)."))
     else:
         shown = structure.reliable
         parts.append(
-            _figure(
+            m.figure(
                 figures.shape_views_figure(structure.points[shown], structure.track_ids[shown].tolist(),
                                            hidden=unreliable),
                 f"The {int(shown.sum())} reliable recovered 3D points from four viewpoints (Y down, as in the image).",
@@ -569,7 +415,7 @@ def _section_motion(run: RunFolder, motion_rotations: np.ndarray | None) -> str 
         return None
     rotations = figures.camera_rotations(run.motion, motion_rotations)
     total = rotations[1]
-    return _figure(
+    return m.figure(
         figures.camera_rotation_figure(run.motion, rotations),
         "Camera rotation recovered per frame, relative to the first frame (rows i, j of the motion matrix "
         f"and k = i × j, snapped to the nearest rotation); largest total rotation {float(total.max()):.2f}°. "
@@ -589,9 +435,9 @@ def _section_ground_truth(run: RunFolder) -> str | None:
             facts.append(("median error, every estimate (px)", float(np.nanmedian(distances))))
             facts.append(("worst error, every estimate (px)", float(np.nanmax(distances))))
         facts.append(("RMS error of the measured estimates (px)", truth.tracking_rms_error_px))
-        parts.append("<h3>Tracking error</h3>" + _table(["", "value"], facts))
+        parts.append("<h3>Tracking error</h3>" + m.table(["", "value"], facts))
         parts.append(
-            _figure(
+            m.figure(
                 figures.track_error_figure(run.tracks.positions, run.ground_truth_tracks, run.tracks.track_ids),
                 "Distance between each track's estimate and the true image position per frame (faint lines, "
                 "one per track) and their RMS (black); frames where the point is not visible are left out.",
@@ -605,14 +451,14 @@ def _section_ground_truth(run: RunFolder) -> str | None:
         facts = [("points compared", len(ids)), ("shape error (% of the object's RMS radius)", truth.shape_error_pct)]
         # the unreliable points are left out of the plot, as everywhere
         shown = np.isin(ids, run.structure.track_ids[run.structure.reliable])  # type: ignore[union-attr]
-        parts.append("<h3>3D shape</h3>" + _table(["", "value"], facts))
+        parts.append("<h3>3D shape</h3>" + m.table(["", "value"], facts))
         if alignment.mirrored:  # type: ignore[union-attr]
             parts.append(
                 '<p class="warn">The recovered shape fits the truth best as a mirror image: the depth-reversal '
                 "ambiguity of orthographic factorization.</p>"
             )
         parts.append(
-            _figure(
+            m.figure(
                 figures.shape_views_figure(aligned[shown], ids[shown].tolist(), truth=true_points[shown],
                                            hidden=int((~shown).sum())),
                 "Recovered points after the best similarity transform onto the ground truth (dots) and the "
@@ -622,92 +468,25 @@ def _section_ground_truth(run: RunFolder) -> str | None:
     errors = [v for v in truth.rotation_error_deg if v is not None]
     if errors:
         parts.append("<h3>Camera rotation</h3>")
-        parts.append(_figure(figures.rotation_error_figure(truth.rotation_error_deg),
+        parts.append(m.figure(figures.rotation_error_figure(truth.rotation_error_deg),
                              "Camera rotation error per frame (degrees)."))
-    if not parts and _is_number(truth.shape_error_pct):
-        parts.append(_table(["", "value"], [("shape error (%)", truth.shape_error_pct)]))
+    if not parts and m.is_number(truth.shape_error_pct):
+        parts.append(m.table(["", "value"], [("shape error (%)", truth.shape_error_pct)]))
     return "".join(parts) or None
-
-
-def _section_fusion(run: RunFolder) -> str | None:
-    fusion = run.summary.fusion
-    if fusion is None:
-        return None
-    facts: list[tuple[str, Any]] = [
-        ("method", fusion.method),
-        ("cameras (views) fused", fusion.cameras),
-        ("points: fused / too few views / degenerate / behind camera",
-         f"{fusion.fused} / {fusion.too_few_views} / {fusion.degenerate} / {fusion.behind_camera}"),
-        ("observations used / rejected as outliers", f"{fusion.observations - fusion.rejected} / {fusion.rejected}"),
-        ("pixel noise σ (px)" + (", estimated from the residuals" if fusion.pixel_std_estimated else ", given"),
-         fusion.pixel_std_px),
-        ("degrees of freedom (2 per observation − 3 per point)", fusion.degrees_of_freedom),
-        ("outlier test probability (χ² gate)", fusion.outlier_probability),
-        ("reprojection RMS of the accepted observations (px)", fusion.reprojection_rms_px),
-        ("median point uncertainty √(tr Σ / 3)", fusion.median_std),
-        ("scene orientation", "mirrored (points at negative depth)" if fusion.orientation < 0 else "normal"),
-    ]
-    parts = [_table(["", "value"], facts)]
-    if fusion.frames_without_camera:
-        parts.append(_frames_warning("Frames with observations but no camera, skipped",
-                                     fusion.frames_without_camera, 10))
-    if "fusion.png" in run.figures:
-        parts.append(_figure(run.figures["fusion.png"].read_bytes(),
-                             "Each point's uncertainty as views are fused: median and quartiles over points, "
-                             "and the paths of the points seen most often."))
-    return "".join(parts)
-
-
-def _frames_warning(label: str, frames: Sequence[int], shown: int) -> str:
-    """A warning paragraph listing the first ``shown`` frame numbers (an ellipsis when there are more)."""
-    listed = ", ".join(str(f) for f in frames[:shown])
-    more = " …" if len(frames) > shown else ""
-    return f'<p class="warn">{_esc(label)}: {_esc(listed)}{more}</p>'
-
-
-def _section_perspective(run: RunFolder) -> str | None:
-    p = run.summary.perspective
-    if p is None:
-        return None
-    facts: list[tuple[str, Any]] = [
-        ("method", "bundle adjustment (batch)" if p.method == "batch" else "relative orientations + recursive fusion"),
-        ("intrinsics", p.intrinsics),
-        ("frames registered", f"{p.registered_frames} of {p.frames}"),
-        ("initial pair (frames)", f"{p.initial_pair[0]}, {p.initial_pair[1]}"),
-        ("points: reconstructed / too few views / degenerate", f"{p.reconstructed} / {p.too_few_views} / {p.degenerate}"),
-        ("observations used (inliers) / measured", f"{p.inliers} / {p.observations}"),
-        ("pixel noise σ from the inlier residuals (px)", p.pixel_std_px),
-        ("degrees of freedom (2 per inlier − 6 per camera − 3 per point + 7)", p.degrees_of_freedom),
-        ("reprojection RMS over the inliers (px)", p.reprojection_rms_px),
-        ("outlier test: threshold (px) / χ² probability", f"{p.outlier_threshold_px:g} / {p.outlier_probability:g}"),
-        ("median point uncertainty √(tr Σ / 3) (initial baseline = 1)", p.median_point_std),
-        ("median camera-centre uncertainty", p.median_centre_std),
-        ("covariances", p.covariance_gauge),
-    ]
-    if p.camera_choice:
-        facts.insert(0, ("camera model (--camera auto)", p.camera_choice))
-    parts = [_table(["", "value"], facts)]
-    if p.unregistered:
-        parts.append(_frames_warning("Frames without a pose (unregistered)", p.unregistered, 12))
-    if "reconstruction.png" in run.figures:
-        parts.append(_figure(run.figures["reconstruction.png"].read_bytes(),
-                             "The recovered camera path (purple, frame numbers) and the points coloured by their "
-                             "uncertainty √(tr Σ / 3), free-network gauge, log scale."))
-    return "".join(parts)
 
 
 def _section_tables(run: RunFolder) -> str | None:
     parts = []
     for table in run.fusion_tables:
-        parts.append(f"<h3>{_esc(table.name)}</h3>")
-        parts.append(_table(table.header, table.rows))
+        parts.append(f"<h3>{m.esc(table.name)}</h3>")
+        parts.append(m.table(table.header, table.rows))
     return "".join(parts) or None
 
 
 def _section_files(run: RunFolder) -> str | None:
     if set(run.data_files) <= {"summary.json"} and not run.frame_paths:
         return None
-    items = [f'<li><a href="{_esc(name)}">{_esc(name)}</a></li>' for name in run.data_files]
+    items = [f'<li><a href="{m.esc(name)}">{m.esc(name)}</a></li>' for name in run.data_files]
     if run.frame_paths:
         items.append(f'<li><a href="frames/">frames/</a> ({len(run.frame_paths)} PNG images)</li>')
     return (
@@ -738,9 +517,7 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         ("sequence", "Sequence with tracks and gates", lambda: _section_sequence(run, frames, progress)),
         ("uncertainty", "Uncertainty over time", lambda: _section_uncertainty(run)),
         ("tracks", "Tracking statistics", lambda: _section_tracks(run)),
-        ("factorization", "Factorization", lambda: _section_factorization(run)),
-        ("fusion", "Structure fusion with known cameras", lambda: _section_fusion(run)),
-        ("perspective", "Perspective reconstruction", lambda: _section_perspective(run)),
+        ("reconstruction", "Reconstruction", lambda: section_reconstruction(run)),
         ("shape", "Recovered 3D shape", lambda: _section_shape(run, motion_rotations)),
         ("motion", "Recovered camera motion", lambda: _section_motion(run, motion_rotations)),
         ("ground-truth", "Comparison with ground truth", lambda: _section_ground_truth(run)),
@@ -752,24 +529,24 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         body = build()
         if body:
             sections.append((anchor, title, body))
-    nav = "".join(f'<a href="#{anchor}">{_esc(title)}</a>' for anchor, title, _ in sections)
+    nav = "".join(f'<a href="#{anchor}">{m.esc(title)}</a>' for anchor, title, _ in sections)
     body_html = "".join(
-        f'<section id="{anchor}"><div class="wrap"><h2>{_esc(title)}</h2>{body}</div></section>'
+        f'<section id="{anchor}"><div class="wrap"><h2>{m.esc(title)}</h2>{body}</div></section>'
         for anchor, title, body in sections
     )
     title = f"kalmansfm report: {run.summary.input}"
-    version = _esc(run.summary.versions.kalmansfm)
+    version = m.esc(run.summary.versions.kalmansfm)
     built = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f"<title>{_esc(title)}</title><style>{CSS}</style><script>{ERROR_TRAP_JS}</script></head><body>"
+        f"<title>{m.esc(title)}</title><style>{CSS}</style><script>{ERROR_TRAP_JS}</script></head><body>"
         f"{_section_header(run)}"
         f'<nav aria-label="sections"><div class="wrap">{nav}</div></nav>'
         f"<main>{body_html}</main>"
         f'<footer><div class="wrap">Written by kalmansfm {version} on {built} from the files of '
-        f"<code>{_esc(str(run.path))}</code>. Rebuild with <code>kalmansfm report DIR</code>."
+        f"<code>{m.esc(str(run.path))}</code>. Rebuild with <code>kalmansfm report DIR</code>."
         '<p id="js-status" data-ready="no" hidden></p></div></footer>'
         f"<script>{JS}</script></body></html>\n"
     )

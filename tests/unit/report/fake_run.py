@@ -19,7 +19,7 @@ import numpy as np
 from kalmansfm.io.summary import (
     RunSummary,
     Similarity,
-    StructureMetrics,
+    ReconstructionMetrics,
     TrackingMetrics,
     TrackMetrics,
     TruthComparison,
@@ -186,10 +186,14 @@ def write_fake_run(
             mean_covariance_trace=tuple(float(v) for v in np.nanmean(np.trace(covariances, axis1=-2, axis2=-1), axis=1)),
             per_track=per_track,
         ),
-        structure=StructureMetrics(
-            method="als", frames=N_FRAMES, points=n_points, reconstructed_frames=N_FRAMES,
-            reconstructed_points=n_points, iterations=12,
-            singular_values=(310.0, 220.0, 95.0, 1.2, 0.8, 0.5, 0.3, 0.2, 0.1, 0.05), residual_rms_px=0.41,
+        reconstruction=ReconstructionMetrics(
+            kind="affine", method="als", camera_model="affine", frames=N_FRAMES, registered_frames=N_FRAMES,
+            unregistered=(), points=n_points, reconstructed=n_points, unreliable=0, too_few_views=0, degenerate=0,
+            behind_camera=0, observations=int((status == 1).sum()), used=int((status == 1).sum()), rejected=0,
+            noise_std=1.1, noise_estimated=True, noise_unit="unit weight", noise_model="gaussian",
+            degrees_of_freedom=40, reprojection_rms_px=0.41, median_point_std=0.3, median_centre_std=None,
+            covariance_gauge="affine gauge", iterations=12,
+            singular_values=(310.0, 220.0, 95.0, 1.2, 0.8, 0.5, 0.3, 0.2, 0.1, 0.05),
             weighted=True, smoothed=True,
             warnings=("track 4 was lost in frame 6; factorized the 4 complete tracks", "a<b & c"),
         ),

@@ -21,7 +21,7 @@ ALL_SECTIONS = [
     "sequence",
     "uncertainty",
     "tracks",
-    "factorization",
+    "reconstruction",
     "shape",
     "motion",
     "ground-truth",
@@ -115,7 +115,7 @@ def test_frames_without_tracks_show_the_raw_strip(tmp_path):
         (None, r"summary\.json: not found"),
         ("{not json", r"summary\.json: line 1: not valid JSON \(column "),
         ("[1, 2]", r"summary\.json: expected a JSON object"),
-        ('{"command": "demo"}', r"summary\.json: schema_version None is not 3"),
+        ('{"command": "demo"}', r"summary\.json: schema_version None is not 4"),
         (_SUMMARY[:-1] + ', "tracking": [1]}', r"summary\.json\.tracking: expected an object"),
         (_SUMMARY[:-1] + ', "files": ["a.csv", 3]}', r"summary\.json\.files\[1\]: expected a string"),
         (_SUMMARY[:-1] + ', "colour": "red"}', r"summary\.json: unknown field\(s\) colour"),
@@ -286,7 +286,7 @@ def test_survival_figure_draws_the_tracks_it_is_given():
 
 
 def test_a_frame_list_warning_names_the_first_frames_and_says_when_there_are_more():
-    from kalmansfm.report.html import _frames_warning
+    from kalmansfm.report.markup import frames_warning as _frames_warning
 
     assert _frames_warning("Frames <x>", [3, 4], 2) == '<p class="warn">Frames &lt;x&gt;: 3, 4</p>'
     assert _frames_warning("Frames", list(range(15)), 12).endswith(": 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11 …</p>")

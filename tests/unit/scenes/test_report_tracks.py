@@ -29,5 +29,5 @@ def test_printed_states_as_printed():
 def test_report_tracks_factorize():
     rec = factorize(report_tracks().positions)
     assert rec.method == "svd" and rec.points.shape == (9, 3)
-    assert 2.5 < rec.residual_rms < 3.2  # 2.88 px: a weak rank-3 fit, little rotation
+    assert 2.5 < rec.reprojection_rms < 3.2  # 2.88 px: a weak rank-3 fit, little rotation
     np.testing.assert_allclose(np.linalg.norm(rec.motion, axis=2), 1.0, atol=0.05)

@@ -13,7 +13,7 @@ from kalmansfm.scenes.perspective import perspective_scene
 from kalmansfm.structure.geometry.alignment import align_similarity
 from kalmansfm.structure.perspective.bundle import (
     ObservationList,
-    _residuals,
+    residuals_and_jacobians,
     _similarity_directions,
     bundle_adjust,
     compare_in_gauge,
@@ -60,7 +60,7 @@ def test_rotation_log_of_exp_property(v):
 def test_jacobians_match_finite_differences():
     s, K, obs, (R, C, X) = small_problem(skew=3.0)
     kz = np.concatenate([K, np.zeros((len(K), 3, 1))], axis=2)
-    r, _, J_cam, J_point = _residuals(R, C, X, obs, kz)
+    r, _, J_cam, J_point = residuals_and_jacobians(R, C, X, obs, kz)
     h = 1e-6
     for k in (0, 7, len(obs) - 1):
         c, p = obs.cameras[k], obs.points[k]
@@ -117,7 +117,7 @@ def dense_free_network(R, C, X, obs, K, sigma):
     """Reference: dense Jacobian, Moore–Penrose inverse of JᵀJ, then the S-transformation to the point gauge."""
     n, m = len(R), len(X)
     kz = np.concatenate([K, np.zeros((n, 3, 1))], axis=2)
-    _, _, J_cam, J_point = _residuals(R, C, X, obs, kz)
+    _, _, J_cam, J_point = residuals_and_jacobians(R, C, X, obs, kz)
     J = np.zeros((2 * len(obs), 6 * n + 3 * m))
     rows = np.arange(len(obs))
     for a in range(2):

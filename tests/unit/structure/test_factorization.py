@@ -26,15 +26,15 @@ def test_noise_free_scene_recovers_shape_and_orthonormal_motion():
     np.testing.assert_allclose(gram, np.broadcast_to(np.eye(2), gram.shape), atol=1e-9)
     np.testing.assert_allclose(rec.motion[0], np.eye(3)[:2], atol=1e-9)  # gauge
     np.testing.assert_allclose(rec.points.mean(axis=0), 0.0, atol=1e-9)
-    assert rec.residual_rms < 1e-9
-    np.testing.assert_allclose(rec.reprojected(), positions, atol=1e-8)
+    assert rec.reprojection_rms < 1e-9
+    np.testing.assert_allclose(rec.project(), positions, atol=1e-8)
 
 
 def test_the_mirror_image_explains_the_data_equally_well():
     positions, shape, _ = orthographic_scene(np.random.default_rng(2))
     rec = factorize(positions)
     mirror = rec.mirrored()
-    np.testing.assert_allclose(mirror.reprojected(), positions, atol=1e-8)
+    np.testing.assert_allclose(mirror.project(), positions, atol=1e-8)
     assert relative_shape_error(mirror.points, shape) < 1e-6
     # Exactly one of the pair is a proper rotation of the truth.
     proper = [align_similarity(p, shape).rms < 1e-6 for p in (rec.points, mirror.points)]
@@ -47,8 +47,8 @@ def test_complete_data_residual_is_the_rank3_floor():
     frames, points = positions.shape[:2]
     w = positions.transpose(0, 2, 1).reshape(2 * frames, points)
     s = np.linalg.svd(w - w.mean(axis=1, keepdims=True), compute_uv=False)
-    np.testing.assert_allclose(rec.singular_values, s, rtol=1e-10)
-    assert rec.residual_rms == pytest.approx(np.sqrt(np.sum(s[3:] ** 2) / (frames * points)), rel=1e-9)
+    np.testing.assert_allclose(rec.details.singular_values, s, rtol=1e-10)
+    assert rec.reprojection_rms == pytest.approx(np.sqrt(np.sum(s[3:] ** 2) / (frames * points)), rel=1e-9)
 
 
 @pytest.mark.parametrize("pattern", ["random", "occluder"])
@@ -66,8 +66,8 @@ def test_missing_data_matches_complete_answer(pattern):
     assert rec.method == "als" and rec.warnings == ()
     assert relative_shape_error(rec.points, complete.points) < 1e-6
     assert relative_shape_error(rec.points, shape) < 1e-6
-    np.testing.assert_allclose(rec.reprojected(), positions, atol=1e-5)
-    assert np.isnan(rec.residuals[~rec.observed]).all()
+    np.testing.assert_allclose(rec.project(), positions, atol=1e-5)
+    assert np.isnan(rec.observations.residual_matrix()[~rec.observations.used_mask()]).all()
 
 
 def test_unreachable_points_and_frames_are_nan_and_flagged():
@@ -120,8 +120,8 @@ def test_weighted_als_converges_to_svd_answer_with_uniform_nonconstant_layout():
     w = np.ones(positions.shape[:2])
     w[2, 3] = 0.0
     rec = factorize(positions, weights=w)
-    assert rec.method == "als" and not rec.observed[2, 3]
-    np.testing.assert_allclose(rec.reprojected(), positions, atol=1e-6)
+    assert rec.method == "als" and not rec.observations.used_mask()[2, 3]
+    np.testing.assert_allclose(rec.project(), positions, atol=1e-6)
 
 
 @pytest.mark.parametrize(("frames", "points"), [(2, 10), (5, 3)])
@@ -208,7 +208,7 @@ def house() -> np.ndarray:
 
 def test_cmu_house_residual_is_the_rank3_floor(house):
     rec = factorize(house)
-    assert rec.residual_rms == pytest.approx(0.995, abs=5e-4)  # 0.99508 measured
+    assert rec.reprojection_rms == pytest.approx(0.995, abs=5e-4)  # 0.99508 measured
     lengths = np.linalg.norm(rec.motion, axis=2)
     cosine = np.sum(rec.motion[:, 0] * rec.motion[:, 1], axis=1) / lengths.prod(axis=1)
     assert np.abs(lengths - 1).max() < 0.02
@@ -234,7 +234,7 @@ def test_rank_warning_reports_the_measured_ratio_not_a_guessed_cause():
     rank_notes = [w for w in rec.warnings if "not clearly rank 3" in w]
     assert len(rank_notes) == 1
     note = rank_notes[0]
-    sv = rec.singular_values
+    sv = rec.details.singular_values
     assert f"σ3/σ4 = {sv[2] / sv[3]:.3g}" in note and sv[2] / sv[3] < 2.0
     assert "coplanar" not in note and "no rotation" not in note
     # the rigid part is still recovered well

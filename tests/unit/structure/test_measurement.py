@@ -105,14 +105,20 @@ def test_factorize_streamed_equals_the_lapack_closed_form(stream_everything):
     assert streamed.method == lapack.method == "svd" and streamed.warnings == lapack.warnings == ()
     if np.sign(streamed.points[0, 2]) != np.sign(lapack.points[0, 2]):
         streamed = streamed.mirrored()  # the singular vectors' signs pick one of the mirror pair
-    for name in ("points", "motion", "translation", "residuals"):
+    for name in ("points", "motion", "image_translation"):
         np.testing.assert_allclose(getattr(streamed, name), getattr(lapack, name), rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(streamed.singular_values[:3], lapack.singular_values[:3], rtol=1e-12)
-    assert streamed.residual_rms == pytest.approx(lapack.residual_rms, rel=1e-12)
-    assert streamed.observed.all() and streamed.observed.shape == x.shape[:2] and streamed.observed.dtype == bool
+    np.testing.assert_allclose(streamed.observations.residual_matrix(), lapack.observations.residual_matrix(),
+                               rtol=1e-9, atol=1e-9)
+    # the lean covariance path of streamed input equals the general one
+    np.testing.assert_allclose(streamed.point_covariances, lapack.point_covariances, rtol=1e-9)
+    np.testing.assert_array_equal(streamed.point_status, lapack.point_status)
+    np.testing.assert_allclose(streamed.details.singular_values[:3], lapack.details.singular_values[:3], rtol=1e-12)
+    assert streamed.reprojection_rms == pytest.approx(lapack.reprojection_rms, rel=1e-12)
+    used = streamed.observations.used_mask()
+    assert used.all() and used.shape == x.shape[:2] and used.dtype == bool
     # the residuals taken from the SVD's last pass are the reprojection distances
-    direct = np.sqrt(((streamed.reprojected() - x) ** 2).sum(axis=2))
-    np.testing.assert_allclose(streamed.residuals, direct, rtol=1e-9, atol=1e-10)
+    direct = np.sqrt(((streamed.project() - x) ** 2).sum(axis=2))
+    np.testing.assert_allclose(streamed.observations.residual_matrix(), direct, rtol=1e-9, atol=1e-10)
 
 
 def test_factorize_streamed_float32_keeps_float32_residuals(stream_everything):
@@ -120,9 +126,9 @@ def test_factorize_streamed_float32_keeps_float32_residuals(stream_everything):
     single = x.astype(np.float32)
     rec = factorize(single)
     exact = factorize(single.astype(np.float64))  # the same float32 values, streamed as float64
-    assert rec.residuals.dtype == np.float32 and rec.points.dtype == np.float64
+    assert rec.observations.residual_matrix().dtype == np.float32 and rec.points.dtype == np.float64
     np.testing.assert_allclose(rec.points, exact.points, rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(rec.residuals, exact.residuals, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(rec.observations.residual_matrix(), exact.observations.residual_matrix(), rtol=1e-6, atol=1e-6)
 
 
 def test_factorize_streamed_reads_any_layout(stream_everything):
@@ -151,7 +157,7 @@ def test_factorize_streamed_allocates_little_besides_its_outputs(stream_everythi
     finally:
         tracemalloc.stop()
     # the (F, P) residuals are 0.5 of the (F, P, 2) input; a (2F, P) copy of W would be 1.0 more
-    assert rec.method == "svd" and peak - rec.residuals.nbytes < 0.1 * x.nbytes
+    assert rec.method == "svd" and peak - rec.observations.residual_matrix().nbytes < 0.1 * x.nbytes
 
 
 def test_factorize_streamed_says_when_the_subspace_is_not_certified(stream_everything):

@@ -24,7 +24,7 @@ def aligned_errors(rec, scene):
                                 centres=rec.centres[reg], reference_centres=scene.centres[reg])
     return compare_in_gauge(rec.points[ok], rec.point_covariances[ok], scene.points[ok],
                             rotations=rec.rotations[reg], centres=rec.centres[reg],
-                            camera_covariances=rec.camera_covariances[reg], reference_rotations=scene.rotations[reg],
+                            camera_covariances=rec.pose_covariances[reg], reference_rotations=scene.rotations[reg],
                             reference_centres=scene.centres[reg])
 
 
@@ -47,7 +47,7 @@ def test_points_are_accurate_and_their_gauge_covariances_consistent(walkarounds)
         e = out.point_errors
         nees.append(out.point_nees)
         # the pixel noise is recovered from the residuals (degrees of freedom counted)
-        assert rec.pixel_std == pytest.approx(scene.pixel_std, rel=0.06)
+        assert rec.noise.std == pytest.approx(scene.pixel_std, rel=0.06)
         assert np.median(np.linalg.norm(e, axis=1)) < 0.01  # object radius ~1.7
     n = np.concatenate(nees)
     assert 2.5 < n.mean() < 3.5
@@ -69,14 +69,14 @@ def test_gross_outliers_are_rejected_and_good_observations_kept(walkarounds):
     for scene, rec in walkarounds:
         seen = np.isfinite(scene.observations[..., 0]) & rec.reconstructed[None]
         planted = scene.outliers & seen
-        assert np.mean(~rec.inliers[planted]) > 0.9
+        assert np.mean(~rec.observations.used_mask()[planted]) > 0.9
         good = seen & ~scene.outliers
-        assert np.mean(~rec.inliers[good]) < 0.02
+        assert np.mean(~rec.observations.used_mask()[good]) < 0.02
 
 
 def test_output_frame_is_the_initial_pairs_first_camera_with_unit_baseline(walkarounds):
     rec = walkarounds[0][1]
-    a, b = rec.initial_pair
+    a, b = rec.details.initial_pair
     np.testing.assert_allclose(rec.rotations[a], np.eye(3), atol=1e-12)
     np.testing.assert_allclose(rec.centres[a], 0.0, atol=1e-12)
     assert np.linalg.norm(rec.centres[b]) == pytest.approx(1.0, rel=1e-12)
@@ -87,7 +87,7 @@ def test_reconstruction_is_reproducible():
     first = reconstruct_perspective(s.observations, s.intrinsics)
     second = reconstruct_perspective(s.observations, s.intrinsics)
     np.testing.assert_array_equal(first.points, second.points)
-    np.testing.assert_array_equal(first.inliers, second.inliers)
+    np.testing.assert_array_equal(first.observations.used_mask(), second.observations.used_mask())
 
 
 def test_planar_scene_is_refused_as_degenerate():

@@ -8,12 +8,13 @@ from scipy import stats
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-import kalmansfm.structure.fusion.point_fusion as pf
+import kalmansfm.structure.fusion.recursive as recursive_method
+from fusion_recursive import recursive_states_numpy
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus
 from kalmansfm.structure.geometry.pinhole import CameraSet, project_each, project_points
-from kalmansfm.structure.fusion.point_fusion import FusionSettings, fuse, iterated_update
+from kalmansfm.structure.fusion import FusionSettings, fuse, iterated_update
 
 
 def nees(errors, covariances):
@@ -34,37 +35,37 @@ def fused(outlier_scene):
 @pytest.mark.parametrize("method", ["recursive", "batch"])
 def test_covariances_are_honest_and_outliers_found_on_a_scene_with_planted_mismatches(outlier_scene, fused, method):
     s, f = outlier_scene, fused[method]
-    ok = f.fused
+    ok = f.reconstructed
     assert ok.mean() > 0.99
     # auto σ, counted with the degrees of freedom after rejection, finds the true noise
-    assert f.pixel_std_estimated and abs(f.pixel_std / s.pixel_std - 1) < 0.03
+    assert f.noise.estimated and abs(f.noise.std / s.pixel_std - 1) < 0.03
     e = f.points[ok] - s.points[ok]
-    n = nees(e, f.covariances[ok])
+    n = nees(e, f.point_covariances[ok])
     assert abs(np.median(n) - stats.chi2.median(3)) < 0.2
-    z = np.abs(e) / np.sqrt(np.diagonal(f.covariances[ok], axis1=1, axis2=2))
+    z = np.abs(e) / np.sqrt(np.diagonal(f.point_covariances[ok], axis1=1, axis2=2))
     assert np.all(np.abs((z <= 1).mean(axis=0) - 0.683) < 0.03)
     assert np.all((z <= 3).mean(axis=0) > 0.99)
     # the two-view (first) estimates are honest too
-    first = f.history.first()
+    first = f.details.history.first()
     good = np.isfinite(first.estimates).all(axis=1)
     n2 = nees(first.estimates[good] - s.points[first.points[good]], first.covariances[good])
     assert abs(np.median(n2) - stats.chi2.median(3)) < 0.25
     # outliers: recall and false rejections
     observed = np.isfinite(s.observations[..., 0])
-    recall = (f.rejected & s.outliers).sum() / s.outliers.sum()
-    false = (f.rejected & ~s.outliers).sum() / (observed & ~s.outliers).sum()
+    recall = (f.observations.rejected_mask() & s.outliers).sum() / s.outliers.sum()
+    false = (f.observations.rejected_mask() & ~s.outliers).sum() / (observed & ~s.outliers).sum()
     assert recall > 0.99
     assert false < 0.005
     # views counts the accepted observations
-    np.testing.assert_array_equal(f.views, (observed & ~f.rejected).sum(axis=0) * ok)
+    np.testing.assert_array_equal(f.views, (observed & ~f.observations.rejected_mask()).sum(axis=0) * ok)
 
 
 def test_recursive_and_batch_agree_within_a_small_fraction_of_the_uncertainty(fused):
     a, b = fused["recursive"], fused["batch"]
-    both = a.fused & b.fused & (a.rejected == b.rejected).all(axis=0)
+    both = a.reconstructed & b.reconstructed & (a.observations.rejected_mask() == b.observations.rejected_mask()).all(axis=0)
     assert both.mean() > 0.98
     d = a.points[both] - b.points[both]
-    n = nees(d, b.covariances[both])
+    n = nees(d, b.point_covariances[both])
     assert np.median(n) < 1e-3
     assert np.quantile(n, 0.99) < 0.05
 
@@ -72,25 +73,25 @@ def test_recursive_and_batch_agree_within_a_small_fraction_of_the_uncertainty(fu
 def test_pairs_is_the_reports_scheme_and_is_over_confident():
     s = known_camera_scene(points=2000, views=10, pixel_std=0.5, seed=4)
     f = fuse(s.observations, s.cameras, method="pairs", pixel_std=0.5)
-    assert f.fused.all() and not f.rejected.any()
-    n = nees(f.points - s.points, f.covariances)
+    assert f.reconstructed.all() and not f.observations.rejected_mask().any()
+    n = nees(f.points - s.points, f.point_covariances)
     assert n.mean() > 4  # consecutive pairs share images, counted twice (a consistent mean is 3 ± 0.1 here)
 
 
 def test_compiled_kernel_matches_the_numpy_reference(monkeypatch):
     s = known_camera_scene(points=1500, views=9, pixel_std=0.5, outlier_fraction=0.1, visibility=0.6, seed=5)
     compiled = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
-    monkeypatch.setattr(pf, "_RECURSIVE_STATES", pf._recursive_states_numpy)
+    monkeypatch.setattr(recursive_method, "_STATES", recursive_states_numpy)
     reference = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
-    np.testing.assert_array_equal(compiled.status, reference.status)
-    np.testing.assert_array_equal(compiled.rejected, reference.rejected)
+    np.testing.assert_array_equal(compiled.point_status, reference.point_status)
+    np.testing.assert_array_equal(compiled.observations.rejected_mask(), reference.observations.rejected_mask())
     np.testing.assert_array_equal(compiled.views, reference.views)
-    scale = np.sqrt(np.diagonal(reference.covariances, axis1=1, axis2=2))
+    scale = np.sqrt(np.diagonal(reference.point_covariances, axis1=1, axis2=2))
     assert np.nanmax(np.abs(compiled.points - reference.points) / scale) < 1e-6
-    np.testing.assert_allclose(compiled.covariances, reference.covariances, rtol=1e-6, atol=0)
-    np.testing.assert_array_equal(compiled.history.views, reference.history.views)
-    np.testing.assert_array_equal(compiled.history.points, reference.history.points)
-    np.testing.assert_allclose(compiled.history.estimates, reference.history.estimates, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(compiled.point_covariances, reference.point_covariances, rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(compiled.details.history.views, reference.details.history.views)
+    np.testing.assert_array_equal(compiled.details.history.points, reference.details.history.points)
+    np.testing.assert_allclose(compiled.details.history.estimates, reference.details.history.estimates, rtol=0, atol=1e-7)
 
 
 @pytest.mark.parametrize("method", ["recursive", "batch", "pairs"])
@@ -99,20 +100,20 @@ def test_chunks_and_an_executor_give_the_same_result(method):
     whole = fuse(s.observations, s.cameras, method=method, history=True)
     with ThreadPoolExecutor(2) as pool:
         parts = fuse(s.observations, s.cameras, method=method, history=True, chunk_points=70, executor=pool)
-    np.testing.assert_array_equal(whole.status, parts.status)
-    np.testing.assert_array_equal(whole.rejected, parts.rejected)
+    np.testing.assert_array_equal(whole.point_status, parts.point_status)
+    np.testing.assert_array_equal(whole.observations.rejected_mask(), parts.observations.rejected_mask())
     np.testing.assert_allclose(whole.points, parts.points, rtol=1e-12)
-    assert whole.pixel_std == pytest.approx(parts.pixel_std, rel=1e-12)
-    np.testing.assert_array_equal(whole.history.points, parts.history.points)
+    assert whole.noise.std == pytest.approx(parts.noise.std, rel=1e-12)
+    np.testing.assert_array_equal(whole.details.history.points, parts.details.history.points)
 
 
 def test_history_ends_at_the_final_estimate_and_grows_more_certain():
     s = known_camera_scene(points=200, views=8, pixel_std=0.5, seed=7)
     f = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
-    X, C = f.history.dense(8, 200)
+    X, C = f.details.history.dense(8, 200)
     assert np.isnan(X[0]).all()  # one view gives no estimate
     np.testing.assert_allclose(X[-1], f.points, rtol=1e-12)
-    np.testing.assert_allclose(C[-1], f.covariances, rtol=1e-12)
+    np.testing.assert_allclose(C[-1], f.point_covariances, rtol=1e-12)
     trace = np.trace(C[1:], axis1=2, axis2=3)  # NaN after a view whose observation was rejected
     step = np.diff(trace, axis=0)
     assert np.isfinite(step).mean() > 0.95
@@ -127,15 +128,15 @@ def test_statuses_behind_every_camera_one_view_and_no_baseline():
     obs = project_points(cams, X).pixels + np.random.default_rng(0).normal(scale=0.3, size=(3, 5, 2))
     obs[1:, 2] = np.nan  # seen once
     f = fuse(obs, cams, pixel_std=0.3)
-    labels = [PointStatus(s).label for s in f.status]
+    labels = [PointStatus(s).label for s in f.point_status]
     assert labels == ["ok", "ok", "too_few_views", "behind_camera", "ok"]
-    assert np.isnan(f.points[2:4]).all() and np.isnan(f.covariances[3]).all()
+    assert np.isnan(f.points[2:4]).all() and np.isnan(f.point_covariances[3]).all()
     # every camera at the same centre: no parallax, no depth
     same = CameraSet.from_pose(K, np.stack([np.eye(3)] * 3), np.zeros((3, 3)))
     o = project_points(same, X[:3]).pixels
     for method in ("recursive", "batch", "pairs"):
         g = fuse(o, same, method=method, pixel_std=0.3)
-        assert np.all(g.status == PointStatus.DEGENERATE), method
+        assert np.all(g.point_status == PointStatus.DEGENERATE), method
 
 
 def test_mirrored_reconstruction_is_fused_in_its_own_frame():
@@ -144,8 +145,8 @@ def test_mirrored_reconstruction_is_fused_in_its_own_frame():
     cams = CameraSet.from_matrices(s.cameras.matrices @ mirror)
     for method in ("recursive", "batch", "pairs"):
         f = fuse(s.observations, cams, method=method, pixel_std=0.5)
-        assert f.orientation == -1 and f.fused.all(), method
-        n = nees(f.points - s.points * [1, -1, 1], f.covariances)
+        assert f.details.orientation == -1 and f.reconstructed.all(), method
+        n = nees(f.points - s.points * [1, -1, 1], f.point_covariances)
         assert 2 < n.mean() < (4 if method != "pairs" else 40), method
 
 
@@ -201,7 +202,7 @@ def test_settings_are_the_same_options_and_a_keyword_beside_them_is_refused():
     by_keywords = fuse(s.observations, s.cameras, method="batch", pixel_std=0.5, outlier_probability=0.99)
     by_settings = fuse(s.observations, s.cameras, settings=FusionSettings("batch", 0.5, 0.99))
     np.testing.assert_array_equal(by_keywords.points, by_settings.points)
-    np.testing.assert_array_equal(by_keywords.covariances, by_settings.covariances)
+    np.testing.assert_array_equal(by_keywords.point_covariances, by_settings.point_covariances)
     with pytest.raises(InvalidInputError, match="give method, history inside settings"):
         fuse(s.observations, s.cameras, method="batch", history=True, settings=FusionSettings())
     with pytest.raises(InvalidInputError, match="pixel_std must be a number .* or 'auto'"):

@@ -8,8 +8,10 @@ import scipy.io
 from scipy.spatial.transform import Rotation
 
 from kalmansfm.errors import InvalidInputError
-from kalmansfm.structure import PointStatus, align_affine, factorize, point_uncertainty
-from kalmansfm.structure.affine.uncertainty import MAX_STD_RATIO, MIN_VIEWS
+from kalmansfm.structure import PointStatus, align_affine
+from kalmansfm.structure import factorize as reconstruct_affine
+from kalmansfm.structure.affine.factorization import factor_affine as factorize
+from kalmansfm.structure.affine.uncertainty import MAX_STD_RATIO, MIN_VIEWS, point_uncertainty
 
 HOTEL = Path(__file__).resolve().parents[4] / "shared" / "data" / "cmu_hotel"
 CHI2_3_1SIGMA, CHI2_3_3SIGMA = 3.5267, 14.156  # χ²₃ quantiles of 0.6827 and 0.9973
@@ -184,3 +186,15 @@ def test_bad_arguments_name_themselves():
         point_uncertainty(rec, x, min_views=1)
     with pytest.raises(InvalidInputError, match="max_std_ratio must be a finite number > 0"):
         point_uncertainty(rec, x, max_std_ratio=0.0)
+
+
+def test_the_reconstruction_carries_the_same_covariances_status_and_noise():
+    shape, x = scene(np.random.default_rng(11))
+    weights = np.where(np.isfinite(x[..., 0]), 2.0, 0.0)
+    u = point_uncertainty(factorize(x, weights=weights), x, weights=weights)
+    rec = reconstruct_affine(x, weights=weights)
+    np.testing.assert_array_equal(rec.point_covariances, u.covariances)
+    np.testing.assert_array_equal(rec.point_status, u.status)
+    np.testing.assert_array_equal(rec.views, u.views)
+    assert rec.noise.std == u.noise_std and rec.noise.degrees_of_freedom == u.dof and rec.noise.unit == "unit weight"
+    assert rec.details.bound == pytest.approx(u.bound_px) and rec.warnings[:len(u.warnings)] == u.warnings

@@ -39,7 +39,7 @@ the rest) come out as NaN and are named in ``warnings``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -47,7 +47,7 @@ from ...errors import InvalidInputError, NotEnoughDataError
 from ..._validation import as_float_array, check_count
 from .lowrank import truncated_svd
 
-__all__ = ["DEFAULT_MAX_ITERATIONS", "Reconstruction", "factorize", "metric_upgrade"]
+__all__ = ["DEFAULT_MAX_ITERATIONS", "AffineFactors", "factor_affine", "metric_upgrade"]
 
 #: Default cap on the alternating least-squares iterations (missing data or weights).
 DEFAULT_MAX_ITERATIONS = 500
@@ -65,8 +65,11 @@ _METRIC_CONDITION = 1e7
 
 
 @dataclass(frozen=True)
-class Reconstruction:
-    """Shape and camera motion recovered from image tracks.
+class AffineFactors:
+    """Shape and affine camera motion fitted to image tracks: what :func:`factor_affine` returns.
+
+    :func:`~kalmansfm.structure.factorize` turns it, with each point's covariance, into the
+    :class:`~kalmansfm.structure.Reconstruction` every method returns.
 
     Attributes
     ----------
@@ -107,25 +110,17 @@ class Reconstruction:
         """(F, P, 2) image positions predicted by the model, M_f S_p + t_f."""
         return (np.matmul(self.motion, self.points.T) + self.translation[:, :, None]).transpose(0, 2, 1)
 
-    def mirrored(self) -> Reconstruction:
-        """The depth-reversed solution, which explains the tracks exactly as well.
-
-        Under orthography, (S, R) and (D S, R D) with D = diag(1, 1, −1) give the same
-        images; this returns the other member of the pair.
-        """
-        flip = np.array([1.0, 1.0, -1.0])
-        return replace(self, points=self.points * flip, motion=self.motion * flip)
 
 
-def factorize(
+def factor_affine(
     positions: np.ndarray,
     *,
     weights: np.ndarray | None = None,
     max_iterations: int = DEFAULT_MAX_ITERATIONS,
     tol: float = 1e-10,
     rng: np.random.Generator | int | None = 0,
-) -> Reconstruction:
-    """Recover 3D shape and camera motion from point tracks (Tomasi–Kanade).
+) -> AffineFactors:
+    """Fit 3D shape and affine camera motion to point tracks (Tomasi–Kanade); the core of :func:`~kalmansfm.structure.factorize`.
 
     Parameters
     ----------
@@ -146,7 +141,7 @@ def factorize(
 
     Returns
     -------
-    Reconstruction
+    AffineFactors
 
     Notes
     -----
@@ -154,8 +149,8 @@ def factorize(
     (fixed here by making frame 0's camera rows the x and y axes), and the *mirror*
     (Necker) ambiguity — the depth-reversed shape ``points * (1, 1, -1)`` with motion
     ``motion * (1, 1, -1)`` reproduces every image identically, so no data can decide
-    between them. One of the two is returned; :meth:`Reconstruction.mirrored` gives the
-    other. The scale is fixed by unit-length camera rows (pixels).
+    between them. One of the two is returned; :meth:`~kalmansfm.structure.Reconstruction.mirrored` gives
+    the other. The scale is fixed by unit-length camera rows (pixels).
 
     The closed form (no NaN, no weights) is the report's algorithm; otherwise the fit is
     weighted alternating least squares over the observed entries (see the module notes).
@@ -182,7 +177,7 @@ def factorize(
     >>> shape = rng.normal(size=(8, 3)) * 10
     >>> frames = [np.linalg.qr(rng.normal(size=(3, 3)))[0][:2] for _ in range(5)]
     >>> tracks = np.stack([shape @ m.T + [100, 50] for m in frames])
-    >>> rec = factorize(tracks)
+    >>> rec = factor_affine(tracks)
     >>> rec.points.shape, rec.motion.shape, rec.residual_rms < 1e-9
     ((8, 3), (5, 2, 3), True)
     >>> rows = rec.motion @ rec.motion.transpose(0, 2, 1)
@@ -243,7 +238,7 @@ def factorize(
         residuals, used = fit.residuals, np.broadcast_to(np.True_, (frames, points))
         residual_rms = float(np.sqrt(fit.residual_sum / residuals.size))
     method, iterations, sv = fit.method, fit.iterations, fit.singular_values
-    return Reconstruction(
+    return AffineFactors(
         points=full_points,
         motion=full_motion,
         translation=full_translation,

@@ -47,7 +47,8 @@ import numpy as np
 
 from ..._validation import as_float_array
 from ...errors import InvalidInputError
-from .factorization import Reconstruction
+from . import factorization
+from .factorization import AffineFactors
 from ..points import PointStatus
 
 __all__ = ["MAX_STD_RATIO", "MIN_VIEWS", "PointUncertainty", "point_uncertainty"]
@@ -132,7 +133,7 @@ class PointUncertainty:
 
 
 def point_uncertainty(
-    reconstruction: Reconstruction,
+    reconstruction: AffineFactors,
     positions: np.ndarray,
     *,
     weights: np.ndarray | None = None,
@@ -143,7 +144,7 @@ def point_uncertainty(
 
     Parameters
     ----------
-    reconstruction : the result of :func:`~kalmansfm.structure.factorize` on ``positions``.
+    reconstruction : the result of :func:`~kalmansfm.structure.affine.factorization.factor_affine` on ``positions``.
     positions : (F, P, 2) float — the observations that were factorized (NaN where none).
     weights : (F, P) or (F, P, 2) float, optional — the weights given to
         :func:`~kalmansfm.structure.factorize`, if any.
@@ -168,13 +169,14 @@ def point_uncertainty(
 
     Examples
     --------
-    >>> from kalmansfm.structure import PointStatus, factorize
+    >>> from kalmansfm.structure import PointStatus
+    >>> from kalmansfm.structure.affine.factorization import factor_affine
     >>> rng = np.random.default_rng(0)
     >>> shape = rng.normal(size=(30, 3)) * 50
     >>> rotations = [np.linalg.qr(rng.normal(size=(3, 3)))[0][:2] for _ in range(8)]
     >>> tracks = np.stack([shape @ m.T + 200 for m in rotations]) + rng.normal(scale=0.5, size=(8, 30, 2))
     >>> tracks[2:, 0] = np.nan                      # point 0 is seen in frames 0 and 1 only
-    >>> rec = factorize(tracks)
+    >>> rec = factor_affine(tracks)
     >>> u = point_uncertainty(rec, tracks)
     >>> round(u.noise_std, 1), u.views[:3].tolist(), [PointStatus(s).label for s in u.status[:3]]
     (0.5, [2, 8, 8], ['unreliable', 'ok', 'ok'])
@@ -188,17 +190,21 @@ structure.csv and left out of the plots",)
     """
     motion = np.asarray(reconstruction.motion)
     frames, n_points = reconstruction.observed.shape
-    x = as_float_array("positions", positions)
-    if x.shape != (frames, n_points, 2):
-        raise InvalidInputError(f"positions must have the reconstruction's shape ({frames}, {n_points}, 2); got {x.shape}")
+    if np.shape(positions) != (frames, n_points, 2):
+        raise InvalidInputError(f"positions must have the reconstruction's shape ({frames}, {n_points}, 2); got "
+                                f"{np.shape(positions)}")
     if not (isinstance(min_views, (int, np.integer)) and min_views >= 2):
         raise InvalidInputError(f"min_views must be an integer >= 2; got {min_views!r}")
     if not (np.isfinite(max_std_ratio) and max_std_ratio > 0):
         raise InvalidInputError(f"max_std_ratio must be a finite number > 0; got {max_std_ratio!r}")
-    w = _weights(weights, frames, n_points)
-
     frame_ok = np.isfinite(motion).all(axis=(1, 2)) & np.isfinite(reconstruction.translation).all(axis=1)
     point_ok = np.isfinite(reconstruction.points).all(axis=1)
+    # the inputs the factorization streamed (complete, unweighted, 2F·P beyond its LAPACK limit)
+    if (weights is None and 2 * frames * n_points > factorization._LAPACK_LIMIT and frame_ok.all()
+            and point_ok.all() and np.all(reconstruction.observed)):
+        return _complete_unweighted(reconstruction, min_views, max_std_ratio)
+    x = as_float_array("positions", positions)
+    w = _weights(weights, frames, n_points)
     used = reconstruction.observed & frame_ok[:, None] & point_ok[None, :]
     w = np.where(used[:, :, None], w, 0.0)
     views = used.sum(axis=0).astype(np.int64)
@@ -226,14 +232,50 @@ structure.csv and left out of the plots",)
         inverse = (eigenvectors / np.maximum(eigenvalues, floor)[:, None, :]) @ eigenvectors.transpose(0, 2, 1)
         covariances[solvable] = noise_var * inverse
 
+    return _judge(reconstruction, covariances, views, reprojection_rms, noise_var, dof, point_ok, frame_ok,
+                  min_views, max_std_ratio)
+
+
+def _complete_unweighted(reconstruction: AffineFactors, min_views: int, max_std_ratio: float) -> PointUncertainty:
+    """Every frame saw every point, no weights: one normal matrix for all points, σ̂ from the residual lengths.
+
+    Reads the (F, P) residuals once and makes no (F, P, 2) temporary: the large complete inputs
+    that take this path would otherwise need several arrays the size of the input.
+    """
+    motion = np.asarray(reconstruction.motion)
+    frames, n_points = reconstruction.observed.shape
+    residuals = reconstruction.residuals
+    squared_per_point = np.einsum("fp,fp->p", residuals, residuals, dtype=np.float64)
+    views = np.full(n_points, frames, dtype=np.int64)
+    reprojection_rms = np.sqrt(squared_per_point / frames)
+    dof = 2 * frames * n_points - (3 * n_points + 8 * frames - _GAUGE_PARAMETERS)
+    noise_var = float(squared_per_point.sum()) / dof if dof > 0 else np.nan
+    rows = motion.reshape(-1, 3)
+    normal = rows.T @ rows
+    covariances = np.full((n_points, 3, 3), np.nan)
+    if np.isfinite(noise_var) and frames >= 2:
+        eigenvalues, eigenvectors = np.linalg.eigh(normal)
+        floor = max(eigenvalues[-1], np.finfo(float).tiny) * 1e-15
+        covariances[:] = noise_var * (eigenvectors / np.maximum(eigenvalues, floor)) @ eigenvectors.T
+    everything = np.ones(n_points, dtype=bool)
+    return _judge(reconstruction, covariances, views, reprojection_rms, noise_var, dof, everything,
+                  np.ones(frames, dtype=bool), min_views, max_std_ratio)
+
+
+def _judge(reconstruction: AffineFactors, covariances: np.ndarray, views: np.ndarray, reprojection_rms: np.ndarray,
+           noise_var: float, dof: int, point_ok: np.ndarray, frame_ok: np.ndarray, min_views: int,
+           max_std_ratio: float) -> PointUncertainty:
+    """The status of every point from its views and covariance, relative to the shape's radius."""
     shape = reconstruction.points
     well_seen = point_ok & (views >= min_views)
     reference = shape[well_seen] if well_seen.sum() >= 4 else shape[point_ok]
     radius = float(np.median(np.linalg.norm(reference - np.median(reference, axis=0), axis=1))) if len(reference) else np.nan
-    # a point left out: too few of the reconstructed frames saw it, or it is not linked to them
-    seen = (reconstruction.observed & frame_ok[:, None]).sum(axis=0)
-    status = np.where(point_ok, PointStatus.UNRELIABLE,
-                      np.where(seen < 2, PointStatus.TOO_FEW_VIEWS, PointStatus.DEGENERATE)).astype(np.int8)
+    status = np.full(len(views), PointStatus.UNRELIABLE, dtype=np.int8)
+    if not point_ok.all():
+        # a point left out: too few of the reconstructed frames saw it, or it is not linked to them
+        seen = (reconstruction.observed & frame_ok[:, None]).sum(axis=0)
+        status[:] = np.where(point_ok, PointStatus.UNRELIABLE,
+                             np.where(seen < 2, PointStatus.TOO_FEW_VIEWS, PointStatus.DEGENERATE))
     uncertainty = PointUncertainty(covariances, views, status, reprojection_rms, float(np.sqrt(noise_var)), int(dof),
                                    radius, int(min_views), float(max_std_ratio))
     with np.errstate(invalid="ignore"):

@@ -1,6 +1,6 @@
 """Compiled (numba) kernel of the recursive structure fusion: one pass over a chunk of points.
 
-The same algorithm as the NumPy reference in :mod:`kalmansfm.structure.fusion.point_fusion`
+The same algorithm as the NumPy reference in ``tests/reference/fusion_recursive.py``
 (``_recursive_states_numpy``), written per point: the NumPy version streams
 every per-point array through memory several times per view and per iterated
 update, this one keeps a point's 3-vector and 3 × 3 covariance in registers
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# The constants are those of point_fusion (passed in, one definition there).
+# The constants are those of inverse_depth (passed in, one definition there).
 
 
 @njit(cache=True, inline="always")

@@ -5,7 +5,7 @@ moves with known motion and tracks landmarks; the goal is each landmark's
 position in the current camera frame after every image, with an uncertainty
 one can trust.  Known motion is known cameras: image k is the camera
 P_k = diag(f, f, 1) [A_k | -c_k] with X_k = A_k X_0 - c_k, and every method is
-:func:`~kalmansfm.structure.fusion.point_fusion.fuse` with its history (the estimate
+:func:`~kalmansfm.structure.fusion.fuse` with its history (the estimate
 after every image), moved into camera frame k.
 
 ``method="pairs"`` (the report's scheme)
@@ -41,7 +41,9 @@ import numpy as np
 from ...errors import InvalidInputError, NotEnoughDataError
 from ..._validation import as_float_array, check_positive
 from ..geometry.pinhole import CameraSet
-from .point_fusion import FUSION_METHODS, fuse, pair_triangulations
+from .fuse import fuse
+from .pairs import pair_triangulations
+from .settings import FUSION_METHODS
 from ..geometry.triangulation import check_focal, check_motion
 
 __all__ = [
@@ -165,7 +167,7 @@ def _to_frames(A: np.ndarray, c: np.ndarray, X: np.ndarray, P: np.ndarray) -> tu
 
 
 def check_method(method: str) -> str:
-    """``method`` if it is one of :data:`~kalmansfm.structure.fusion.point_fusion.FUSION_METHODS`.
+    """``method`` if it is one of :data:`~kalmansfm.structure.fusion.FUSION_METHODS`.
 
     Parameters
     ----------
@@ -250,10 +252,10 @@ def estimate_landmarks(
     # image k is the camera diag(f, f, 1) [A_k | -c_k]: world = camera frame 0, points in front
     cameras = CameraSet.from_pose(np.diag([f, f, 1.0]), A, -c)
     fused = fuse(obs, cameras, method=method, pixel_std=sigma, outlier_probability=1.0, history=True, orientation=1)
-    estimates, covariances = _to_frames(A, c, *fused.history.dense(K, L))
+    estimates, covariances = _to_frames(A, c, *fused.details.history.dense(K, L))
     pairs = pair_triangulations(obs, cameras, sigma, orientation=1)
     measurements, measurement_covariances = _to_frames(A, c, pairs.points, pairs.covariances)
     converged = np.isfinite(estimates).all(axis=2) & np.isfinite(covariances).all(axis=(2, 3))
-    states = fused.history.dense(K, L, states=True) if method == "recursive" else (None, None)
+    states = fused.details.history.dense(K, L, states=True) if method == "recursive" else (None, None)
     return LandmarkEstimates(method, estimates, covariances, measurements, measurement_covariances, pairs.status,
                              converged, *states)

@@ -663,12 +663,12 @@ def _ridge(A: np.ndarray) -> np.ndarray:
     return A + ridge[..., None, None] * np.eye(3)
 
 
-def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+def solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Batched 3 × 3 solves A x = b with a tiny ridge."""
     return np.linalg.solve(_ridge(A), b[..., None])[..., 0]
 
 
-def _inverse3(A: np.ndarray) -> np.ndarray:
+def inverse3(A: np.ndarray) -> np.ndarray:
     """Batched 3 × 3 inverses with a tiny ridge."""
     return np.linalg.inv(_ridge(A))
 
@@ -731,7 +731,7 @@ def refine_points(cameras: CameraSet | np.ndarray, observations: object, initial
     stalled = np.zeros(N, dtype=bool)
     active = live.copy()
     for _ in range(max_iterations):
-        gn = _solve3(JtJ, Jtr)
+        gn = solve3(JtJ, Jtr)
         # gᵀ N⁻¹ g / σ²: the squared Gauss–Newton step measured in standard deviations
         decrement = np.einsum("ni,ni->n", Jtr, gn) / sigma**2
         active &= (decrement >= _STOP_DECREMENT * (1.0 + cost / sigma**2)) & (lam < 1e12)
@@ -742,7 +742,7 @@ def refine_points(cameras: CameraSet | np.ndarray, observations: object, initial
         Na = JtJ[a]
         # Levenberg–Marquardt: (N + λ diag N) δ = Jᵀ r
         damped = Na + lam[a, None, None] * np.diagonal(Na, axis1=1, axis2=2)[:, :, None] * np.eye(3)
-        X_new = X[a] + _solve3(damped, Jtr[a])
+        X_new = X[a] + solve3(damped, Jtr[a])
         r_new, JtJ_new, Jtr_new, cost_new, front_new = _normal_equations(P, X_new, obs[:, a], seen_live[:, a],
                                                                           orientation)
         ok = front_new & np.isfinite(cost_new) & (cost_new <= cost[a])
@@ -752,7 +752,7 @@ def refine_points(cameras: CameraSet | np.ndarray, observations: object, initial
         cost[acc] = cost_new[ok]
         in_front[acc] = True
         lam[a] = np.where(ok, np.maximum(lam[a] / 10.0, 1e-12), np.minimum(lam[a] * 10.0, 1e12))
-    decrement = np.einsum("ni,ni->n", Jtr, _solve3(JtJ, Jtr)) / sigma**2
+    decrement = np.einsum("ni,ni->n", Jtr, solve3(JtJ, Jtr)) / sigma**2
     evals = np.linalg.eigvalsh(JtJ)
     conditioned = np.isfinite(evals).all(axis=1) & (evals[:, 0] > evals[:, 2] / _MAX_CONDITION)
     status[live & ~conditioned] = PointStatus.DEGENERATE

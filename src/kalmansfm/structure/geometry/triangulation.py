@@ -54,7 +54,7 @@ __all__ = [
 #   DEGENERATE     the two rays are parallel (no parallax): the point is NaN;
 #   BEHIND_CAMERA  triangulated, but behind the right camera (alpha <= 0): the numbers are
 #                  returned as computed, they are not a physically possible landmark;
-#   TOO_FEW_VIEWS  (pair tables of point_fusion) no pair could be formed: the point is not
+#   TOO_FEW_VIEWS  (pair tables of fusion.pairs) no pair could be formed: the point is not
 #                  seen in one of the two images.
 
 # Rays whose directions make an angle smaller than this (radians) are treated as parallel.

@@ -8,7 +8,6 @@ from .settings import (
     DEFAULT_OUTLIER_THRESHOLD_PX,
     PERSPECTIVE_METHODS,
     FrameStatus,
-    PerspectiveReconstruction,
     PerspectiveSettings,
 )
 
@@ -17,7 +16,6 @@ __all__ = [
     "DEFAULT_OUTLIER_THRESHOLD_PX",
     "PERSPECTIVE_METHODS",
     "FrameStatus",
-    "PerspectiveReconstruction",
     "PerspectiveSettings",
     "reconstruct_perspective",
 ]

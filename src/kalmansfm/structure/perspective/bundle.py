@@ -66,10 +66,12 @@ __all__ = [
     "GaugeCovariances",
     "ObservationList",
     "bundle_adjust",
+    "camera_frame_projections",
     "compare_in_gauge",
     "free_network_covariances",
     "reduced_camera_matrix",
     "reprojection_residuals",
+    "residuals_and_jacobians",
     "similarity_free_covariances",
     "single_threaded_blas",
 ]
@@ -180,12 +182,12 @@ def _accumulate(index: np.ndarray, blocks: np.ndarray, count: int) -> np.ndarray
     return out.reshape((count,) + blocks.shape[1:])
 
 
-def _projection_matrices(intrinsics: np.ndarray) -> np.ndarray:
+def camera_frame_projections(intrinsics: np.ndarray) -> np.ndarray:
     """(n, 3, 4) [K | 0]: projects camera-frame points."""
     return np.concatenate([intrinsics, np.zeros(intrinsics.shape[:-1] + (1,))], axis=-1)
 
 
-def _residuals(rotations: np.ndarray, centres: np.ndarray, points: np.ndarray, obs: ObservationList,
+def residuals_and_jacobians(rotations: np.ndarray, centres: np.ndarray, points: np.ndarray, obs: ObservationList,
                kz: np.ndarray, jacobians: bool = True):
     """Residuals (N, 2) = projected - observed, depths (N,) and, if asked, d r / d(ω, C) (N, 2, 6), d r / dX (N, 2, 3)."""
     R = rotations[obs.cameras]
@@ -287,7 +289,7 @@ def reduced_camera_matrix(rotations: np.ndarray, centres: np.ndarray, points: np
     ((12, 12), (20, 3, 3), 5)
     """
     R, C, X, K = _validate_problem(rotations, centres, points, observations, intrinsics)
-    r, _, J_c, J_p = _residuals(R, C, X, observations, _projection_matrices(K))
+    r, _, J_c, J_p = residuals_and_jacobians(R, C, X, observations, camera_frame_projections(K))
     blocks = _normal_blocks(observations, len(R), len(X), r, J_c, J_p, np.ones(len(observations)))
     S, _ = _reduced_camera_matrix(observations, blocks, blocks.U, np.linalg.inv(blocks.V))
     return S, blocks.V
@@ -373,8 +375,8 @@ def bundle_adjust(rotations: object, centres: object, points: object, observatio
     scale = check_positive("loss_scale", loss_scale, "pixels")
     obs = observations
     n, m = len(R), len(X)
-    kz = _projection_matrices(K)
-    r, _, J_c, J_p = _residuals(R, C, X, obs, kz)
+    kz = camera_frame_projections(K)
+    r, _, J_c, J_p = residuals_and_jacobians(R, C, X, obs, kz)
     cost = initial = _cost(r, loss, scale)
     damping = _INITIAL_DAMPING
     growth = 2.0
@@ -405,7 +407,7 @@ def bundle_adjust(rotations: object, centres: object, points: object, observatio
             R_new = rotation_exp(d_cam[:, :3]) @ R
             C_new = C + d_cam[:, 3:]
             X_new = X + d_point
-            r_new, _, J_c_new, J_p_new = _residuals(R_new, C_new, X_new, obs, kz)
+            r_new, _, J_c_new, J_p_new = residuals_and_jacobians(R_new, C_new, X_new, obs, kz)
             cost_new = _cost(r_new, loss, scale)
             # predicted decrease of the quadratic model: ½ (-gᵀδ + λ δᵀ D δ)
             predicted = 0.5 * (-np.sum(blocks.g_cam * d_cam) - np.sum(blocks.g_point * d_point)
@@ -443,8 +445,8 @@ def reprojection_residuals(rotations: np.ndarray, centres: np.ndarray, points: n
     ([[0.0, 0.0]], [2.0])
     """
     K = np.broadcast_to(np.asarray(intrinsics, dtype=np.float64), (len(rotations), 3, 3))
-    return _residuals(np.asarray(rotations, float), np.asarray(centres, float), np.asarray(points, float),
-                      observations, _projection_matrices(K), jacobians=False)
+    return residuals_and_jacobians(np.asarray(rotations, float), np.asarray(centres, float), np.asarray(points, float),
+                      observations, camera_frame_projections(K), jacobians=False)
 
 
 def _similarity_directions(rotations: np.ndarray, centres: np.ndarray, points: np.ndarray
@@ -580,7 +582,7 @@ def free_network_covariances(rotations: object, centres: object, points: object,
     sigma = check_positive("pixel_std", pixel_std, "pixels")
     obs = observations
     n, m = len(R), len(X)
-    r, _, J_c, J_p = _residuals(R, C, X, obs, _projection_matrices(K))
+    r, _, J_c, J_p = residuals_and_jacobians(R, C, X, obs, camera_frame_projections(K))
     blocks = _normal_blocks(obs, n, m, r, J_c, J_p, np.ones(len(obs)))
     V_inv = np.linalg.inv(blocks.V)
     S, Y = _reduced_camera_matrix(obs, blocks, blocks.U, V_inv)

@@ -15,13 +15,13 @@ from ...errors import NotEnoughDataError
 from .bundle import ObservationList, bundle_adjust, free_network_covariances, reprojection_residuals
 from .settings import (
     FrameStatus,
-    PerspectiveReconstruction,
     PerspectiveSettings,
     frame_runs,
-    residual_rms_per_point,
+    perspective_reconstruction,
 )
+from ..reconstruction import Reconstruction
 from ..geometry.pinhole import CameraSet, camera_centres, triangulate_points
-from ..fusion.point_fusion import fuse
+from ..fusion import fuse
 from ..points import PointStatus
 
 __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
@@ -281,8 +281,8 @@ class _Incremental:
             fused = fuse(obs, self._cameras(frames), method="batch",
                          pixel_std=gate / np.sqrt(self.settings.chi2_bound),
                          outlier_probability=self.settings.outlier_probability)
-        ok = fused.status == PointStatus.OK
-        used = use & ~fused.rejected
+        ok = fused.point_status == PointStatus.OK
+        used = use & ~fused.observations.rejected_mask()
         angles = _ray_angles_deg(self.C[frames], np.where(ok[:, None], fused.points, 0.0), used & ok[None])
         ok &= angles >= self.settings.min_triangulation_angle_deg
         # a track that lost an observation to the outlier test is trusted only with >= 3 consistent views left:
@@ -340,7 +340,7 @@ class _Incremental:
             previous = self.inlier.copy()
 
     # -- 4. result ------------------------------------------------------------------------------------
-    def result(self, method: str) -> PerspectiveReconstruction:
+    def result(self, method: str) -> Reconstruction:
         start = time.perf_counter()
         sigma, rms, dof = self._sigma()
         obs, frames, tracks = self._observations()
@@ -365,14 +365,14 @@ class _Incremental:
         status = np.full(self.P, PointStatus.TOO_FEW_VIEWS, dtype=np.int8)
         status[self.has_point] = PointStatus.OK
         inliers = self.inlier & self.seen & self.registered[:, None] & self.has_point[None]
-        views = inliers.sum(axis=0)
         degenerate = ~self.has_point & ((self.seen & self.inlier)[frames].sum(axis=0) >= 2)
         status[degenerate] = PointStatus.DEGENERATE
         self._warn()
-        point_rms = residual_rms_per_point(self.obs, self.K, R, t, X, inliers)
-        return PerspectiveReconstruction(method, X, point_cov, status, views, R, t, cam_cov,
-                                         self.frame_status.copy(), inliers, point_rms, sigma, rms, dof,
-                                         self.initial_pair, tuple(self.warnings), dict(self.timings))
+        return perspective_reconstruction(
+            method, self.obs, self.K, self.settings, points=X, point_covariances=point_cov, point_status=status,
+            rotations=R, translations=t, pose_covariances=cam_cov, frame_status=self.frame_status.copy(),
+            inliers=inliers, pixel_std=sigma, reprojection_rms=rms, degrees_of_freedom=dof,
+            initial_pair=self.initial_pair, warnings=tuple(self.warnings), timings=dict(self.timings))
 
     def _warn(self) -> None:
         missing = np.flatnonzero(~self.registered)
@@ -386,7 +386,7 @@ class _Incremental:
 
 
 def reconstruct_incremental(observations: np.ndarray, intrinsics: np.ndarray,
-                            settings: PerspectiveSettings) -> PerspectiveReconstruction:
+                            settings: PerspectiveSettings) -> Reconstruction:
     """Initial pair, growth, refinement and covariances on validated (F, P, 2) tracks and (F, 3, 3) K."""
     state = _Incremental(observations, intrinsics, settings)
     state.initialize()

@@ -18,7 +18,7 @@ Pipeline (``method="batch"``, the default)
 2. **Growth.**  The unregistered frame that sees the most reconstructed points
    is registered by PnP with RANSAC (``solvePnPRansac``, then ``solvePnPRefineLM``
    on the inliers); the tracks it completes are triangulated with the
-   known-camera fusion engine (:func:`.point_fusion.fuse`, per-point maximum
+   known-camera fusion engine (:func:`~kalmansfm.structure.fusion.fuse`, per-point maximum
    likelihood with leave-one-out outlier rejection); a bundle adjustment with a
    Huber loss follows whenever the registered set has grown by a quarter, and
    observations beyond twice the outlier threshold are dropped.
@@ -51,19 +51,18 @@ from .settings import (
     DEFAULT_OUTLIER_THRESHOLD_PX,
     PERSPECTIVE_METHODS,
     FrameStatus,
-    PerspectiveReconstruction,
     PerspectiveSettings,
     validate_tracks_and_intrinsics,
 )
 from .incremental import reconstruct_incremental
 from .recursive import reconstruct_recursive
+from ..reconstruction import Reconstruction
 
 __all__ = [
     "COVARIANCE_GAUGE",
     "DEFAULT_OUTLIER_THRESHOLD_PX",
     "PERSPECTIVE_METHODS",
     "FrameStatus",
-    "PerspectiveReconstruction",
     "PerspectiveSettings",
     "reconstruct_perspective",
 ]
@@ -72,7 +71,7 @@ __all__ = [
 @single_threaded_blas
 def reconstruct_perspective(observations: object, intrinsics: object, method: str | None = None, *,
                             outlier_threshold_px: float | None = None,
-                            settings: PerspectiveSettings | None = None) -> PerspectiveReconstruction:
+                            settings: PerspectiveSettings | None = None) -> Reconstruction:
     """Camera poses and 3-D points from calibrated point tracks, with covariances in the free-network gauge.
 
     Parameters
@@ -95,7 +94,11 @@ def reconstruct_perspective(observations: object, intrinsics: object, method: st
 
     Returns
     -------
-    PerspectiveReconstruction
+    Reconstruction
+        ``kind="perspective"``, ``camera_model="pinhole"``: the poses of the registered frames
+        (``frame_status``), the points, their covariances and the pose covariances in the
+        free-network gauge, the observations used, σ estimated from the inlier residuals
+        (``noise``) and the initial pair (``details``).
 
     Raises
     ------
@@ -111,7 +114,7 @@ def reconstruct_perspective(observations: object, intrinsics: object, method: st
     >>> from kalmansfm.scenes.perspective import perspective_scene
     >>> scene = perspective_scene(frames=6, points=150, pixel_std=0.5, seed=3)
     >>> rec = reconstruct_perspective(scene.observations, scene.intrinsics)
-    >>> int(rec.registered.sum()), int(rec.reconstructed.sum()) >= 145, round(rec.pixel_std, 1)
+    >>> int(rec.registered.sum()), int(rec.reconstructed.sum()) >= 145, round(rec.noise.std, 1)
     (6, True, 0.5)
     """
     if settings is None:

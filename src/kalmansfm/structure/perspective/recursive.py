@@ -23,7 +23,7 @@ underlying process".  This module does exactly that:
 
    the process noise J Σ_motion Jᵀ being the motion's covariance pushed through
    (J = ∂x_k / ∂(ω, Ĉ, s)); the update is a gated iterated EKF update with the
-   point's observation in frame k (:mod:`.point_fusion`'s update, the same as in
+   point's observation in frame k (:mod:`~kalmansfm.structure.fusion`'s update, the same as in
    known-camera fusion).  A track first seen in a pair enters the filter with
    the pair's triangulation and a covariance that includes the pair's image
    noise and the motion's and scale's uncertainty (implicit-function theorem).
@@ -46,8 +46,8 @@ import numpy as np
 from ...errors import NotEnoughDataError
 from .bundle import (
     ObservationList,
-    _projection_matrices,
-    _residuals,
+    camera_frame_projections,
+    residuals_and_jacobians,
     bundle_adjust,
     reduced_camera_matrix,
     reprojection_residuals,
@@ -55,13 +55,13 @@ from .bundle import (
 )
 from .settings import (
     FrameStatus,
-    PerspectiveReconstruction,
     PerspectiveSettings,
     frame_runs,
-    residual_rms_per_point,
+    perspective_reconstruction,
 )
+from ..reconstruction import Reconstruction
 from .incremental import relative_pose
-from ..fusion.point_fusion import iterated_update
+from ..fusion import iterated_update
 from ..points import PointStatus
 from ..geometry.rotation import cross_matrix
 
@@ -135,7 +135,7 @@ def _relative_orientation(obs: np.ndarray, K: np.ndarray, normalised: np.ndarray
     big = np.trace(S_b)
     covariance = np.linalg.inv(S_b + big * np.outer(u, u)) - np.outer(u, u) / big
     # d point / d(camera b) at the least-squares solution: -V⁻¹ J_pᵀ J_c over the point's view in b
-    _, _, J_c, J_p = _residuals(R, C, X, observations, _projection_matrices(Kab))
+    _, _, J_c, J_p = residuals_and_jacobians(R, C, X, observations, camera_frame_projections(Kab))
     in_b = observations.cameras == 1
     sensitivity = np.zeros((len(tracks), 3, 6))
     sensitivity[observations.points[in_b]] = -np.linalg.solve(
@@ -184,7 +184,7 @@ def _scale(x: np.ndarray, P: np.ndarray, motion: _Motion, sigma: float) -> tuple
 
 
 def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
-                          settings: PerspectiveSettings) -> PerspectiveReconstruction:
+                          settings: PerspectiveSettings) -> Reconstruction:
     """Relative orientations of consecutive frames, then recursive fusion with them as process noise.
 
     Parameters are validated (F, P, 2) tracks and (F, 3, 3) intrinsics (see
@@ -315,7 +315,8 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
                     "correlate the points: its covariances are over-confident, the more so the closer consecutive "
                     "frames are (docs/perspective.md); method 'batch' gives calibrated covariances")
     t = -np.einsum("fij,fj->fi", R_chain, C_chain)
-    point_rms = residual_rms_per_point(obs, K, R_chain, t, points, inliers)
-    return PerspectiveReconstruction("recursive", points, point_cov, status, inliers.sum(axis=0), R_chain, t,
-                                     cam_cov, frame_status, inliers, point_rms, sigma, rms, int(dof), (first - 1, first),
-                                     tuple(warnings))
+    return perspective_reconstruction(
+        "recursive", obs, K, settings, points=points, point_covariances=point_cov, point_status=status,
+        rotations=R_chain, translations=t, pose_covariances=cam_cov, frame_status=frame_status, inliers=inliers,
+        pixel_std=sigma, reprojection_rms=rms, degrees_of_freedom=int(dof), initial_pair=(first - 1, first),
+        warnings=tuple(warnings))

@@ -1,4 +1,4 @@
-"""Settings, result and status types of calibrated reconstruction (:mod:`.perspective`).
+"""Settings of calibrated reconstruction, the check of its inputs, and how its result is assembled.
 
 Shared by the batch method (:mod:`.incremental`) and the recursive one
 (:mod:`.recursive`).
@@ -6,41 +6,39 @@ Shared by the batch method (:mod:`.incremental`) and the recursive one
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
 
 from ...errors import InvalidInputError, NotEnoughDataError
-from ..._validation import LabelledEnum, as_float_array, check_count, check_positive
-from ..geometry.pinhole import camera_centres
+from ..._validation import as_float_array, check_count, check_positive
 from ..points import PointStatus
+from ..reconstruction import (
+    FREE_NETWORK_GAUGE,
+    FrameStatus,
+    NoiseEstimate,
+    Observations,
+    PerspectiveDetails,
+    Reconstruction,
+)
 
 __all__ = [
     "COVARIANCE_GAUGE",
     "DEFAULT_OUTLIER_THRESHOLD_PX",
     "PERSPECTIVE_METHODS",
     "FrameStatus",
-    "PerspectiveReconstruction",
     "PerspectiveSettings",
+    "perspective_reconstruction",
     "validate_tracks_and_intrinsics",
 ]
 
 #: how the point covariances are to be read (written into summary.json and the PLY header).
-COVARIANCE_GAUGE = ("free-network gauge: the covariance of each point after a least-squares similarity "
-                    "alignment (translation, rotation, scale) of all reconstructed points onto any reference")
+COVARIANCE_GAUGE = FREE_NETWORK_GAUGE
 #: the methods of :func:`reconstruct_perspective`.
 PERSPECTIVE_METHODS = ("batch", "recursive")
 #: an observation farther than this from where the other views put its point is an outlier (pixels).
 DEFAULT_OUTLIER_THRESHOLD_PX = 4.0
-
-
-class FrameStatus(LabelledEnum):
-    """Outcome for one frame; its ``label`` (``registered``, ``not_connected``, ``pose_failed``) is the word files use."""
-
-    REGISTERED = 0  #: the frame has a pose
-    NOT_CONNECTED = 1  #: it shares too few tracks with the reconstructed points
-    POSE_FAILED = 2  #: no consistent pose from the points it shares
 
 
 @dataclass(frozen=True)
@@ -95,72 +93,58 @@ class PerspectiveSettings:
         return float(stats.chi2.ppf(self.outlier_probability, 2))
 
 
-@dataclass(frozen=True)
-class PerspectiveReconstruction:
-    """Cameras and points recovered from tracks, with covariances in the free-network gauge.
+def perspective_reconstruction(method: str, observations: np.ndarray, intrinsics: np.ndarray, settings: PerspectiveSettings,
+                               *, points: np.ndarray, point_covariances: np.ndarray, point_status: np.ndarray,
+                               rotations: np.ndarray, translations: np.ndarray, pose_covariances: np.ndarray,
+                               frame_status: np.ndarray, inliers: np.ndarray, pixel_std: float,
+                               reprojection_rms: float, degrees_of_freedom: int,
+                               initial_pair: tuple[int, int], warnings: tuple[str, ...],
+                               timings: dict[str, float] | None = None) -> Reconstruction:
+    """The :class:`~kalmansfm.structure.Reconstruction` of a calibrated reconstruction (both methods).
 
-    The world frame is that of the first camera of the initial pair, scaled so
-    that the initial pair's centres are 1 apart.  x_cam = R X + t.
-
-    Attributes
-    ----------
-    method : ``"batch"`` or ``"recursive"``.
-    points : (P, 3) — NaN where the status is not RECONSTRUCTED.
-    point_covariances : (P, 3, 3) — covariance of each point after a least-squares
-        similarity alignment of all points onto a reference (the free-network
-        gauge); NaN where not reconstructed.
-    point_status : (P,) int8 — :class:`~.points.PointStatus` values: ``OK``, ``TOO_FEW_VIEWS`` (fewer than
-        2 consistent observations in registered frames) or ``DEGENERATE`` (rays nearly parallel).
-    views : (P,) int — inlier observations of each point.
-    rotations : (F, 3, 3) — NaN for unregistered frames.
-    translations : (F, 3) — NaN for unregistered frames.
-    camera_covariances : (F, 6, 6) — covariance of (δω, δC), the small rotation of the
-        camera frame (R_true = exp([δω]×) R) and the centre, in the same gauge; NaN
-        for unregistered frames.
-    frame_status : (F,) int8 — :class:`FrameStatus` values.
-    inliers : (F, P) bool — observations used in the final estimate.
-    point_reprojection_rms : (P,) — RMS length of each point's reprojection errors over its
-        inliers (pixels); NaN where not reconstructed.
-    pixel_std : σ of the image noise estimated from the inlier residuals (pixels).
-    reprojection_rms : RMS length of the 2-D reprojection error over the inliers (pixels).
-    degrees_of_freedom : 2 × inliers − 6 × cameras − 3 × points + 7.
-    initial_pair : the two frames the reconstruction started from.
-    warnings : things the user should know (unregistered frames, weak geometry, …).
-    timings : seconds spent per stage.
+    ``observations`` (F, P, 2) are the tracks, ``intrinsics`` (F, 3, 3) K, ``inliers`` (F, P) the
+    observations the estimate used; the residual of every observation of a reconstructed point
+    in a registered frame is measured here, the covariances are in the free-network gauge.
     """
-
-    method: str
-    points: np.ndarray
-    point_covariances: np.ndarray
-    point_status: np.ndarray
-    views: np.ndarray
-    rotations: np.ndarray
-    translations: np.ndarray
-    camera_covariances: np.ndarray
-    frame_status: np.ndarray
-    inliers: np.ndarray
-    point_reprojection_rms: np.ndarray
-    pixel_std: float
-    reprojection_rms: float
-    degrees_of_freedom: int
-    initial_pair: tuple[int, int]
-    warnings: tuple[str, ...] = ()
-    timings: dict[str, float] = field(default_factory=dict, compare=False)
-
-    @property
-    def registered(self) -> np.ndarray:
-        """(F,) bool — frames with a pose."""
-        return self.frame_status == FrameStatus.REGISTERED
-
-    @property
-    def reconstructed(self) -> np.ndarray:
-        """(P,) bool — tracks with a 3-D point."""
-        return self.point_status == PointStatus.OK
-
-    @property
-    def centres(self) -> np.ndarray:
-        """(F, 3) camera centres -Rᵀ t (NaN for unregistered frames)."""
-        return camera_centres(self.rotations, self.translations)
+    registered = frame_status == FrameStatus.REGISTERED
+    reconstructed = point_status == PointStatus.OK
+    seen = np.isfinite(observations).all(axis=2)
+    measurable = seen & registered[:, None] & reconstructed[None, :]
+    frames, tracks = np.nonzero(measurable)
+    x_cam = np.einsum("nij,nj->ni", rotations[frames], points[tracks]) + translations[frames]
+    pix = np.einsum("nij,nj->ni", intrinsics[frames], x_cam)
+    residuals = np.full(seen.shape, np.nan)
+    residuals[frames, tracks] = np.linalg.norm(pix[:, :2] / pix[:, 2:] - observations[frames, tracks], axis=1)
+    used = inliers & seen
+    point_rms = residual_rms_per_point(observations, intrinsics, rotations, translations, points, used)
+    projections = np.full((len(frame_status), 3, 4), np.nan)
+    projections[registered] = intrinsics[registered] @ np.concatenate(
+        [rotations[registered], translations[registered, :, None]], axis=2)
+    return Reconstruction(
+        kind="perspective",
+        method=method,
+        camera_model="pinhole",
+        projections=projections,
+        rotations=rotations,
+        frame_status=np.asarray(frame_status, dtype=np.int8),
+        points=points,
+        point_covariances=point_covariances,
+        point_status=np.asarray(point_status, dtype=np.int8),
+        views=used.sum(axis=0).astype(np.int64),
+        point_reprojection_rms=point_rms,
+        covariance_gauge=COVARIANCE_GAUGE,
+        observations=Observations.from_dense(observations, used=used, residuals=residuals),
+        noise=NoiseEstimate(std=float(pixel_std), estimated=True, degrees_of_freedom=int(degrees_of_freedom)),
+        reprojection_rms=float(reprojection_rms),
+        details=PerspectiveDetails(initial_pair=(int(initial_pair[0]), int(initial_pair[1])),
+                                   outlier_threshold_px=settings.outlier_threshold_px,
+                                   outlier_probability=settings.outlier_probability),
+        intrinsics=intrinsics,
+        translations=translations,
+        pose_covariances=pose_covariances,
+        warnings=tuple(warnings),
+        timings=dict(timings or {}),
+    )
 
 
 def validate_tracks_and_intrinsics(observations: object, intrinsics: object) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,82 @@
+"""The batch method: per point, maximum likelihood over all its views with leave-one-out outlier rejection."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry.pinhole import inverse3, project_points, projection_jacobians, refine_points, triangulate_points
+from ..points import PointStatus
+from .chunks import Chunk, ChunkResult, concat_history, finish
+
+__all__ = ["run_batch"]
+
+
+def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(V, n) rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r of each used observation (unit σ), NaN elsewhere."""
+    J = projection_jacobians(P, X)
+    J = np.where(mask[..., None, None], J, 0.0)
+    N_inv = inverse3(np.einsum("vnai,vnaj->nij", J, J))
+    hat = np.einsum("vnai,nij,vnbj->vnab", J, N_inv, J)
+    A = np.eye(2) - hat
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
+    det = np.where(mask & (det > 1e-12), det, np.nan)
+    # 2 × 2 inverse quadratic form: rᵀ adj(A) r / det(A)
+    q = (A[..., 1, 1] * r[..., 0] ** 2 - (A[..., 0, 1] + A[..., 1, 0]) * r[..., 0] * r[..., 1]
+         + A[..., 0, 0] * r[..., 1] ** 2)
+    return q / det
+
+
+def _batch_fit(P: np.ndarray, obs: np.ndarray, mask: np.ndarray, start: np.ndarray | None, orientation: int):
+    if start is None:
+        start = triangulate_points(P, obs, visible=mask, orientation=orientation).points
+    return refine_points(P, obs, start, visible=mask, pixel_std=1.0, orientation=orientation)
+
+
+def run_batch(job: Chunk) -> ChunkResult:
+    g, obs = job.geometry, job.observations
+    V, n, _ = obs.shape
+    mask = np.isfinite(obs).all(axis=2)
+    rejected = np.zeros((V, n), dtype=bool)
+    fit = _batch_fit(g.P, obs, mask, None, g.orientation)
+    X, C, status, r = fit.points.copy(), fit.covariances.copy(), fit.status.copy(), fit.residuals.copy()
+    todo = np.flatnonzero(status == PointStatus.OK)
+    for _ in range(V):
+        if todo.size == 0:
+            break
+        m = mask[:, todo]
+        views = m.sum(axis=0)
+        loo = _leave_one_out(g.P, X[todo], np.nan_to_num(r[:, todo]), m & (views >= 3)) / job.sigma**2
+        worst = np.argmax(np.where(np.isfinite(loo), loo, -np.inf), axis=0)
+        worst_d2 = loo[worst, np.arange(todo.size)]
+        drop_one = (views >= 3) & (worst_d2 > job.gate2)
+        cost = np.nansum(r[:, todo] ** 2, axis=(0, 2)) / job.sigma**2
+        drop_pair = (views == 2) & (cost > job.gate1)
+        mask[worst[drop_one], todo[drop_one]] = False
+        rejected[worst[drop_one], todo[drop_one]] = True
+        pair_pts = todo[drop_pair]
+        rejected[:, pair_pts] |= mask[:, pair_pts]
+        mask[:, pair_pts] = False
+        changed = todo[drop_one | drop_pair]
+        if changed.size == 0:
+            break
+        refit = _batch_fit(g.P, obs[:, changed], mask[:, changed], X[changed], g.orientation)
+        X[changed], C[changed], status[changed] = refit.points, refit.covariances, refit.status
+        r[:, changed] = refit.residuals
+        todo = changed[refit.status == PointStatus.OK]
+    hist = None
+    if job.history:
+        hist_parts = []
+        counts = np.cumsum(mask, axis=0)
+        for v in range(1, V):
+            pts = np.flatnonzero(mask[v] & (counts[v] >= 2) & (status == PointStatus.OK))
+            if pts.size == 0:
+                continue
+            prefix = mask[:, pts] & (np.arange(V)[:, None] <= v)
+            f = _batch_fit(g.P, obs[:, pts], prefix, X[pts], g.orientation)
+            hist_parts.append((v, pts, f.points, f.covariances))
+        hist = concat_history(hist_parts)
+    # residuals of every observation (rejected included) at the final estimate
+    ok = status == PointStatus.OK
+    pix = project_points(g.P, np.where(ok[:, None], X, 0.0)).pixels
+    residuals = np.where(np.isfinite(obs).all(axis=2)[..., None], obs - pix, np.nan)
+    return finish(X, C, status, mask, rejected, residuals, hist)

@@ -1,0 +1,374 @@
+"""``fuse``: the driver of structure fusion with known cameras — chunks, σ passes, and the assembled record.
+
+Thomas & Oliensis, *Fusing Structure by Kalman Filtering* (``004_cd423c68da9c9743.txt``)
+fuse each new view's information about a point into its running estimate.  Here
+the cameras are known 3 × 4 projection matrices (:class:`~.pinhole.CameraSet`)
+and the points are independent given them, so everything is batched over points
+and processed in chunks of points.
+
+Methods
+-------
+``recursive`` (the paper's Kalman fusion, default)
+    Each point's state is its *inverse depth* in the first view that sees it
+    (the anchor): θ = (α, β, ρ) with X = C_a + o R_aᵀ (α, β, 1) / ρ, C_a and R_a
+    the anchor's centre and rotation and o the scene orientation (+1, or -1 for
+    a mirrored reconstruction).  Its homogeneous point is linear in θ, X̃ = H_a θ̃,
+    so view v acts on θ as the 3 × 4 matrix P_v H_a: the projection is a ratio of
+    affine functions of θ, far more linear than in (X, Y, Z), and the state stays
+    valid when the depth is barely determined (ρ near or below zero).  A point
+    starts at its first two usable views (Gauss–Newton on their four
+    coordinates from a linear start; covariance σ² (JᵀJ)⁻¹); every further view
+    is an iterated extended Kalman update on its 2-D projection (each iteration
+    is :func:`~kalmansfm.estimation.kalman.kalman_update` with the model
+    linearised at the current iterate).  All points seen in a view are updated
+    at once (the NumPy reference); by default a numba kernel runs the same
+    transitions point by point.  The (X, Y, Z) estimate is θ̂'s image; its
+    covariance is the second-order image of θ's (:func:`_theta_to_point`).
+``batch`` (the reference)
+    Per point, maximum likelihood over all its views: linear triangulation, then
+    Gauss–Newton in (X, Y, Z) (:func:`~.pinhole.refine_points`).
+``pairs`` (the report's scheme, over-confident)
+    Consecutive observations of a point, two views at a time, are triangulated by
+    the report's midpoint (:func:`~.triangulation.triangulate_midpoint`) with
+    first-order covariance and fused as independent measurements.  Consecutive
+    pairs share an image and the covariances are evaluated at noisy points: kept
+    for fidelity to the report, documented as over-confident.
+
+Outliers
+--------
+An observation is tested before it is used, with σ the pixel noise:
+
+* a further view (recursive): the innovation ν = z - h(θ̂) with S = H P Hᵀ + σ² I;
+  νᵀ S⁻¹ ν beyond the χ²(2) quantile of ``outlier_probability`` → rejected;
+* the first pair of a point (recursive) is provisional until the next view passes
+  the gate; a pair whose Gauss–Newton residual (1 degree of freedom) fails the
+  χ²(1) quantile is kept as a conflict.  Three observations that do not agree are
+  resolved: the one whose removal leaves the most consistent pair (which must pass
+  χ²(1)) is rejected and the point continues from that pair; with no consistent
+  pair the oldest is rejected;
+* batch: the leave-one-out residual of every observation, rᵀ (σ² (I - J N⁻¹ Jᵀ))⁻¹ r,
+  worst first, one per point per round, until all pass; a two-view point whose
+  residual fails the χ²(1) test loses both observations.
+``pairs`` rejects nothing (the report's scheme has no outlier test).
+
+Pixel noise
+-----------
+``pixel_std="auto"`` estimates σ from the residuals with the degrees of freedom
+counted: σ² = Σ |r|² / (2 n_observations - 3 n_points) over the fused points and
+their accepted observations.  It starts from a robust value (the median squared
+residual of an ungated pass) and alternates gating and re-estimation until σ
+changes by less than 0.5 %.  Estimates given fixed gating decisions do not depend
+on σ (every covariance scales with σ²), so the state is kept at unit σ and the
+covariances are scaled by the final σ².
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
+
+from ...errors import InvalidInputError, NotEnoughDataError
+from ..geometry.pinhole import CameraSet
+from ..points import PointStatus
+from ..reconstruction import (
+    KNOWN_CAMERAS_GAUGE,
+    FrameStatus,
+    FusionDetails,
+    NoiseEstimate,
+    Observations,
+    Reconstruction,
+)
+from .batch import run_batch
+from .chunks import Chunk, ChunkResult
+from .history import FusionHistory
+from .inputs import scene_orientation_of, validate_inputs
+from .inverse_depth import ViewGeometry, theta_to_point, view_geometry
+from .pairs import run_pairs
+from .recursive import run_recursive
+from .settings import FusionSettings
+
+__all__ = ["fuse"]
+
+# Auto σ: stop re-estimating when it changes by less than this fraction; at most this many passes.
+_SIGMA_TOLERANCE = 5e-3
+_MAX_SIGMA_PASSES = 8
+# States converted from inverse depth to (X, Y, Z) together (bounds the temporaries).
+_CONVERSION_BLOCK = 16_384
+
+
+_RUNNERS: dict[str, Callable[[Chunk], ChunkResult]] = {"recursive": run_recursive, "batch": run_batch, "pairs": run_pairs}
+
+
+def _run_chunk(job: Chunk) -> ChunkResult:
+    return _RUNNERS[job.method](job)
+
+
+def _chunks(n: int, size: int) -> list[slice]:
+    return [slice(s, min(s + size, n)) for s in range(0, n, size)] or [slice(0, 0)]
+
+
+def _sum_squares(results: Iterable[ChunkResult]) -> tuple[float, int, int]:
+    """Σ |r|² over accepted observations of fused points, their count, and the fused points."""
+    total, n_obs, n_pts = 0.0, 0, 0
+    for res in results:
+        ok = res.status == PointStatus.OK
+        u = res.used & ok[None]
+        total += float(np.sum(np.where(u, res.residuals, 0.0) ** 2))
+        n_obs += int(u.sum())
+        n_pts += int(ok.sum())
+    return total, n_obs, n_pts
+
+
+def fuse(
+    observations: object,
+    cameras: CameraSet | object,
+    method: str | None = None,
+    pixel_std: float | str | None = None,
+    outlier_probability: float | None = None,
+    history: bool | None = None,
+    *,
+    chunk_points: int | None = None,
+    orientation: int | None = None,
+    settings: FusionSettings | None = None,
+    executor: Any | None = None,
+) -> Reconstruction:
+    """Fuse each point's observations over many views with known cameras into a 3-D point and its covariance.
+
+    Parameters
+    ----------
+    observations : (V, N, 2) float
+        Pixel positions (x = column, y = row) of N points in the V views of
+        ``cameras``, in the same view order; NaN where a point is not seen.
+    cameras : CameraSet or (V, 3, 4) projection matrices.
+    method : {"recursive", "batch", "pairs"}, default "recursive"
+        ``"recursive"``: the paper's Kalman fusion, view by view (inverse-depth
+        state, iterated EKF updates); ``"batch"``: per-point maximum likelihood
+        over all views (the reference); ``"pairs"``: the report's fusion of
+        consecutive two-view triangulations (over-confident, no outlier test).
+    pixel_std : float > 0, "auto" or None, default "auto"
+        Image noise σ in pixels; ``"auto"`` (or None) estimates it from the residuals
+        with 2 degrees of freedom per observation minus 3 per point, after outlier
+        rejection.
+    outlier_probability : float in (0, 1], default :data:`DEFAULT_OUTLIER_PROBABILITY`
+        Observations beyond the χ² quantile of this probability are rejected
+        (1 disables the test).
+    history : bool, default False
+        Also return every point's estimate after every view that observed it.
+    chunk_points : int, default :data:`DEFAULT_CHUNK_POINTS`
+        Points processed together; bounds the memory.
+    orientation : +1, -1 or None
+        +1: points lie in front of the cameras (positive depth with P = λ K [R | t]);
+        -1: a mirrored reconstruction; None: the sign most points agree on.
+    settings : FusionSettings, optional
+        All the options above at once (the defaults are :class:`FusionSettings`'s);
+        then none of them may be given as well.
+    executor : object with a ``map(fn, items)`` method, optional
+        Runs the chunks (a ``concurrent.futures.Executor``, or
+        :class:`kalmansfm.pipeline.cluster.ScatteringExecutor` on Dask); by default
+        they run one after the other here.
+
+    Returns
+    -------
+    Reconstruction
+        ``kind="fusion"``: the cameras as given (``frame_ids`` are the camera set's frames),
+        per-point estimates, covariances (σ² scaled, in the cameras' own frame) and status; a
+        point that cannot be estimated gets a status, never an exception.  The observations
+        record which were used and which rejected as outliers, with their residuals; ``noise``
+        is the σ used; ``details`` holds the orientation, the passes and, when asked for,
+        the history.
+
+    Raises
+    ------
+    InvalidInputError
+        Bad shapes, infinite observations, invalid cameras or settings; ``settings``
+        given together with one of the options it holds.
+    NotEnoughDataError
+        Fewer than 2 cameras, or ``pixel_std="auto"`` without redundant observations.
+
+    Examples
+    --------
+    Three cameras along x, 50 points, noise 0.5 px:
+
+    >>> import numpy as np
+    >>> from kalmansfm.structure.geometry.pinhole import CameraSet, project_points
+    >>> rng = np.random.default_rng(0)
+    >>> K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    >>> cams = CameraSet.from_pose(K, np.stack([np.eye(3)] * 3), [[0, 0, 0], [-0.5, 0, 0], [-1.0, 0, 0]])
+    >>> X = rng.uniform([-1, -1, 4], [1, 1, 6], size=(50, 3))
+    >>> obs = project_points(cams, X).pixels + rng.normal(scale=0.5, size=(3, 50, 2))
+    >>> fused = fuse(obs, cams)
+    >>> fused.status_counts()["ok"], round(fused.noise.std, 1)
+    (50, 0.5)
+    >>> err = fused.points - X
+    >>> nees = np.einsum("ni,ni->n", err, np.linalg.solve(fused.point_covariances, err[..., None])[..., 0])
+    >>> bool(2.0 < nees.mean() < 4.5)
+    True
+    """
+    options = {"method": method, "pixel_std": pixel_std, "outlier_probability": outlier_probability,
+               "history": history, "chunk_points": chunk_points, "orientation": orientation}
+    given = {name: value for name, value in options.items() if value is not None}
+    if settings is not None:
+        if given:
+            raise InvalidInputError(f"fuse: give {', '.join(given)} inside settings, not beside it "
+                                    "(settings would silently win)")
+    else:
+        if isinstance(given.get("pixel_std"), str):
+            if given["pixel_std"] != "auto":
+                raise InvalidInputError(f"pixel_std must be a number (pixels) or 'auto'; got {pixel_std!r}")
+            del given["pixel_std"]
+        settings = FusionSettings(**given)
+    return _fuse(observations, cameras, settings, executor)
+
+
+def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSettings,
+          executor: Any | None) -> Reconstruction:
+    cams, obs = validate_inputs(observations, cameras)
+    orientation = scene_orientation_of(cams, obs) if settings.orientation is None else settings.orientation
+    geometry = view_geometry(cams.matrices, orientation)
+    V, N, _ = obs.shape
+    slices = _chunks(N, settings.chunk_points)
+
+    def run(sigma: float, gate2: float, gate1: float, keep_history: bool) -> list[ChunkResult]:
+        jobs = [Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history) for s in slices]
+        mapper = map if executor is None else executor.map
+        return list(mapper(_run_chunk, jobs))
+
+    passes = 1
+    if settings.pixel_std is not None:
+        sigma = settings.pixel_std
+        results = run(sigma, settings.gate2, settings.gate1, settings.history)
+        sigma_out = sigma
+    else:
+        # Pilot without gates: a robust σ from the median squared residual, |r|² / σ² ≈ χ²(2) (median 2 ln 2),
+        # with the degrees of freedom counted.
+        results = run(1.0, np.inf, np.inf, False)
+        sq = np.concatenate([np.where(r.used & (r.status == PointStatus.OK)[None], r.residuals, np.nan).ravel() ** 2
+                             for r in results])
+        sq = sq[np.isfinite(sq)]
+        total, n_obs, n_pts = _sum_squares(results)
+        dof = 2 * n_obs - 3 * n_pts
+        if dof <= 0 or sq.size == 0:
+            raise NotEnoughDataError(
+                f"pixel_std='auto' needs more observations than unknowns (2 per observation - 3 per point > 0); "
+                f"got {n_obs} observations of {n_pts} points: give pixel_std")
+        sigma = float(np.sqrt(np.median(sq) / (2 * np.log(2)) * 2 * n_obs / dof))
+        if not sigma > 0:
+            raise NotEnoughDataError("pixel_std='auto': the residuals are all zero, the noise cannot be estimated; "
+                                     "give pixel_std")
+        sigma_out = sigma
+        previous: tuple[float, float] | None = None
+        for _ in range(_MAX_SIGMA_PASSES):
+            results = run(sigma, settings.gate2, settings.gate1, settings.history)
+            passes += 1
+            total, n_obs, n_pts = _sum_squares(results)
+            dof = 2 * n_obs - 3 * n_pts
+            if dof <= 0:
+                raise NotEnoughDataError(
+                    f"pixel_std='auto' needs 2 × observations - 3 × points > 0 after outlier rejection; got {dof}")
+            sigma_out = float(np.sqrt(total / dof))
+            if abs(sigma_out / sigma - 1.0) < _SIGMA_TOLERANCE:
+                break
+            sigma, previous = _next_sigma(sigma, sigma_out, previous), (sigma, sigma_out)
+    return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes)
+
+
+def _next_sigma(sigma: float, estimate: float, previous: tuple[float, float] | None) -> float:
+    """The next σ to gate with: the fixed point σ = σ̂(σ) of the secant through the last two passes.
+
+    σ̂ grows with the gating σ (a wider gate admits larger residuals) with a slope
+    s < 1; plain iteration σ ← σ̂(σ) shrinks the error only by s per pass, the
+    secant step σ + (σ̂ - σ) / (1 - s) lands on the fixed point of the line.
+    """
+    if previous is None or previous[0] == sigma:
+        return estimate
+    slope = (estimate - previous[1]) / (sigma - previous[0])
+    slope = min(max(slope, 0.0), 0.9)
+    return sigma + (estimate - sigma) / (1.0 - slope)
+
+
+def _to_points(g: ViewGeometry, anchors: np.ndarray | None, x: np.ndarray, cov: np.ndarray, sigma: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(X, Y, Z) and covariance at pixel noise σ from a chunk's unit-σ states (inverse depth when anchored).
+
+    Converted in blocks, so the temporaries of the second-order term stay small.
+    """
+    if anchors is None:
+        return x, cov * sigma**2
+    X, C = np.empty_like(x), np.empty_like(cov)
+    for start in range(0, x.shape[0], _CONVERSION_BLOCK):
+        b = slice(start, start + _CONVERSION_BLOCK)
+        X[b], C[b] = theta_to_point(g, np.maximum(anchors[b], 0), x[b], cov[b] * sigma**2)
+    return X, C
+
+
+def _assemble_history(g: ViewGeometry, results: list[ChunkResult], slices: list[slice], sigma: float) -> FusionHistory:
+    """The chunks' histories in one :class:`FusionHistory`, sorted by view then point.
+
+    Every entry is written once, straight to its sorted place (no second copy of the history).
+    """
+    sizes = [r.history[0].size for r in results]
+    starts = np.cumsum([0, *sizes])
+    views = np.concatenate([r.history[0] for r in results]).astype(np.int64)
+    points = np.concatenate([r.history[1] + chunk.start for r, chunk in zip(results, slices)]).astype(np.int64)
+    order = np.lexsort((points, views))
+    place = np.empty_like(order)
+    place[order] = np.arange(order.size)
+    H = order.size
+    hx, hc = np.empty((H, 3)), np.empty((H, 3, 3))
+    states = results[0].anchors is not None
+    hs, hsc, ha = (np.empty((H, 3)), np.empty((H, 3, 3)), np.empty(H, np.int64)) if states else (None, None, None)
+    for r, begin, end in zip(results, starts[:-1], starts[1:]):
+        _, local, x, cov = r.history
+        where = place[begin:end]
+        anchors = None if r.anchors is None else r.anchors[local]
+        hx[where], hc[where] = _to_points(g, anchors, x, cov, sigma)
+        if states:
+            hs[where], hsc[where], ha[where] = x, cov * sigma**2, anchors
+    return FusionHistory(views[order], points[order], hx, hc, hs, hsc, ha)
+
+
+def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: np.ndarray,
+              results: list[ChunkResult], slices: list[slice], sigma: float, estimated: bool,
+              passes: int) -> Reconstruction:
+    converted = [_to_points(g, r.anchors, r.points, r.covariances, sigma) for r in results]
+    points = np.concatenate([x for x, _ in converted])
+    cov = np.concatenate([c for _, c in converted])
+    status = np.concatenate([r.status for r in results])
+    used = np.concatenate([r.used for r in results], axis=1)
+    rejected = np.concatenate([r.rejected for r in results], axis=1)
+    lengths = np.concatenate([r.residuals for r in results], axis=1)
+    ok = status == PointStatus.OK
+    views = used.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.sum(np.where(used, lengths, 0.0) ** 2, axis=0) / views)
+    rms = np.where(ok, rms, np.nan)
+    dof = int(2 * used[:, ok].sum() - 3 * ok.sum())
+    # the RMS over every observation of a fused point that was not rejected
+    kept = np.isfinite(obs).all(axis=2) & ~rejected & ok[None]
+    overall = float(np.sqrt(np.mean(lengths[kept] ** 2))) if kept.any() else float("nan")
+    hist = _assemble_history(g, results, slices, sigma) if settings.history else None
+    pose = cams.decompose()
+    return Reconstruction(
+        kind="fusion",
+        method=settings.method,
+        camera_model="pinhole",
+        projections=np.array(cams.matrices),
+        rotations=pose.rotations,
+        frame_status=np.full(len(cams), FrameStatus.REGISTERED, dtype=np.int8),
+        points=points,
+        point_covariances=cov,
+        point_status=status,
+        views=views,
+        point_reprojection_rms=rms,
+        covariance_gauge=KNOWN_CAMERAS_GAUGE,
+        observations=Observations.from_dense(obs, used=used, residuals=lengths, rejected=rejected),
+        noise=NoiseEstimate(std=float(sigma), estimated=estimated, degrees_of_freedom=dof),
+        reprojection_rms=overall,
+        details=FusionDetails(outlier_probability=settings.outlier_probability, orientation=g.orientation,
+                              passes=passes, history=hist),
+        intrinsics=pose.intrinsics,
+        translations=pose.translations,
+        frame_ids=cams.frames,
+    )

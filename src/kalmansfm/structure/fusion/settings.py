@@ -1,0 +1,76 @@
+"""How structure fusion with known cameras runs: its methods, defaults and :class:`FusionSettings`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from ...errors import InvalidInputError
+from ..._validation import check_count, check_positive
+
+__all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS", "FusionSettings",
+           "check_orientation"]
+
+FUSION_METHODS = ("recursive", "batch", "pairs")
+DEFAULT_OUTLIER_PROBABILITY = 0.999
+DEFAULT_CHUNK_POINTS = 65_536
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """How :func:`fuse` runs; validated on construction.
+
+    Attributes
+    ----------
+    method : ``"recursive"``, ``"batch"`` or ``"pairs"``.
+    pixel_std : float > 0 in pixels, or None to estimate it (``"auto"``).
+    outlier_probability : in (0, 1]; the gate is the χ² quantile of this probability
+        (1 turns outlier rejection off).
+    history : keep every point's estimate after every view that observed it.
+    chunk_points : points processed together (bounds the memory).
+    orientation : +1 (points in front of the cameras), -1 (a mirrored reconstruction) or
+        None to take the sign most points' depths agree on.
+    """
+
+    method: str = "recursive"
+    pixel_std: float | None = None
+    outlier_probability: float = DEFAULT_OUTLIER_PROBABILITY
+    history: bool = False
+    chunk_points: int = DEFAULT_CHUNK_POINTS
+    orientation: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.method not in FUSION_METHODS:
+            raise InvalidInputError(f"method must be one of {', '.join(FUSION_METHODS)}; got {self.method!r}")
+        if self.pixel_std is not None:
+            object.__setattr__(self, "pixel_std", check_positive("pixel_std", self.pixel_std, "pixels"))
+        try:
+            p = float(self.outlier_probability)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"outlier_probability must be a number in (0, 1]; got "
+                                    f"{self.outlier_probability!r}") from None
+        if not 0.0 < p <= 1.0:
+            raise InvalidInputError(f"outlier_probability must be in (0, 1]; got {p}")
+        object.__setattr__(self, "outlier_probability", p)
+        object.__setattr__(self, "chunk_points", check_count("chunk_points", self.chunk_points, 1))
+        object.__setattr__(self, "history", bool(self.history))
+        if self.orientation is not None:
+            object.__setattr__(self, "orientation", check_orientation(self.orientation))
+
+    @property
+    def gate2(self) -> float:
+        """χ²(2) quantile of ``outlier_probability`` (inf when 1)."""
+        return float(stats.chi2.ppf(self.outlier_probability, 2)) if self.outlier_probability < 1 else np.inf
+
+    @property
+    def gate1(self) -> float:
+        """χ²(1) quantile of ``outlier_probability`` (inf when 1)."""
+        return float(stats.chi2.ppf(self.outlier_probability, 1)) if self.outlier_probability < 1 else np.inf
+
+
+def check_orientation(orientation: object) -> int:
+    if orientation not in (1, -1) or isinstance(orientation, bool):
+        raise InvalidInputError(f"orientation must be +1, -1 or None; got {orientation!r}")
+    return int(orientation)  # type: ignore[arg-type]
