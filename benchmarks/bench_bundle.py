@@ -69,7 +69,7 @@ def oxford_house() -> dict:
     pose = decompose_projection(data.cameras.matrices)
     K = pose.intrinsics
     rec = reconstruct_perspective(data.observations, K)
-    obs = ObservationList.from_dense(data.observations, rec.inliers)
+    obs = ObservationList.from_dense(data.observations, rec.observations.used_mask())
     # skew-free camera K0 and observations mapped into it: x0 = K0 K⁻¹ x
     K0 = K.copy()
     K0[:, 0, 1] = 0.0

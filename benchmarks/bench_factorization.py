@@ -245,7 +245,7 @@ def main() -> None:
         ("factorize", "**kalmansfm `factorize`**, complete data, end to end", size_in,
          subspace_angle(rec.motion.reshape(-1, 3), exact),
          f"from the (F, P, 2) array; peak memory {traced / GB:.2f} GB = {traced / positions.nbytes:.2f}x the input "
-         f"(tracemalloc); residual {rec.residual_rms:.6f} px"),
+         f"(tracemalloc); residual {rec.reprojection_rms:.6f} px"),
         ("factorize32", "kalmansfm `factorize`, the same positions as float32", size_in,
          subspace_angle(results["factorize32"].motion.reshape(-1, 3), exact),
          f"peak memory {traced32 / GB:.2f} GB = {traced32 / single.nbytes:.2f}x its input; the angle is to the "
@@ -294,8 +294,8 @@ def main() -> None:
               f"shape vs complete data (RMS radius) | residual (px) |")
         print("|---|---|---:|---|---:|---:|---:|")
         print(f"| {args.missing_fraction:.0%} of the positions NaN | {size_in} | {t_als:.1f} | "
-              f"{traced_als / GB:.2f} GB ({traced_als / holes.nbytes:.2f}x) / {rss_text} | {als.iterations} | "
-              f"{fit.rms / radius:.1e} | {als.residual_rms:.4f} (complete: {rec.residual_rms:.4f}) |")
+              f"{traced_als / GB:.2f} GB ({traced_als / holes.nbytes:.2f}x) / {rss_text} | {als.details.iterations} | "
+              f"{fit.rms / radius:.1e} | {als.reprojection_rms:.4f} (complete: {rec.reprojection_rms:.4f}) |")
         print("(one call, with tracemalloc running)")
     print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
 

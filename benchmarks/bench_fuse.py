@@ -40,7 +40,7 @@ import numpy as np  # noqa: E402
 
 from kalmansfm.pipeline.cluster import ScatteringExecutor, dask_client  # noqa: E402
 from kalmansfm.scenes.known_cameras import known_camera_scene  # noqa: E402
-from kalmansfm.structure.fusion.point_fusion import fuse  # noqa: E402
+from kalmansfm.structure.fusion import fuse  # noqa: E402
 
 
 def load() -> str:
@@ -87,7 +87,7 @@ def speed(points: int, repeat: int) -> None:
                           ("batch (Gauss-Newton per point), σ given", dict(method="batch", pixel_std=0.5)),
                           ("pairs (the report's scheme), σ given", dict(method="pairs", pixel_std=0.5))):
         t, other = timed(lambda: fuse(s.observations, s.cameras, **kwargs))
-        extra = f" ({other.passes} passes, σ = {other.pixel_std:.3f})" if kwargs.get("pixel_std") == "auto" else ""
+        extra = f" ({other.details.passes} passes, σ = {other.noise.std:.3f})" if kwargs.get("pixel_std") == "auto" else ""
         print(f"| kalmansfm {label}{extra} | {t:.3f} | {1e6 * t / points:.2f} | {1e6 * t / pairs:.3f} | "
               f"{t / best_cv:.2f} |")
     err_ours = np.sqrt(np.mean(np.sum((fused.points - s.points) ** 2, axis=1)))
@@ -152,7 +152,7 @@ def dask_scaling(points: int, chunks: list[int]) -> None:
 
 
 def reference_chunk(points: int) -> int:
-    from kalmansfm.structure.fusion.point_fusion import DEFAULT_CHUNK_POINTS
+    from kalmansfm.structure.fusion import DEFAULT_CHUNK_POINTS
 
     return min(points, DEFAULT_CHUNK_POINTS)
 

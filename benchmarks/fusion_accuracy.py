@@ -27,7 +27,7 @@ from scipy import stats
 
 from kalmansfm.io.oxford import read_oxford
 from kalmansfm.scenes.known_cameras import known_camera_scene
-from kalmansfm.structure.fusion.point_fusion import FUSION_METHODS, fuse
+from kalmansfm.structure.fusion import FUSION_METHODS, fuse
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"
@@ -39,7 +39,7 @@ def nees(e: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 def nested_nees(fused) -> dict[int, tuple[float, int]]:
     """Median NEES of (two-view − final) under Σ_two − Σ_final, by rank (2: one more view, 3: more)."""
-    first = fused.history.first()
+    first = fused.details.history.first()
     extra = fused.views[first.points] - 2
     out = {}
     for dof, sel in ((2, extra == 1), (3, extra >= 2)):
@@ -47,7 +47,7 @@ def nested_nees(fused) -> dict[int, tuple[float, int]]:
         if not sel.any():
             continue
         e = first.estimates[sel] - fused.points[first.points[sel]]
-        w, U = np.linalg.eigh(first.covariances[sel] - fused.covariances[first.points[sel]])
+        w, U = np.linalg.eigh(first.covariances[sel] - fused.point_covariances[first.points[sel]])
         z = np.einsum("nij,ni->nj", U[:, :, -dof:], e)
         out[dof] = (float(np.median(np.sum(z**2 / w[:, -dof:], axis=1))), int(sel.sum()))
     return out
@@ -68,8 +68,8 @@ def oxford() -> None:
             diff = np.linalg.norm(f.points - d.points, axis=1) / radius
             nested = nested_nees(f)
             cells = [f"{nested[k][0]:.2f} [{nested[k][1]}]" if k in nested else "–" for k in (2, 3)]
-            print(f"| {name} | {method} | {np.nanmedian(diff):.1e} | {np.nanmax(diff):.1e} | {f.pixel_std:.3f} | "
-                  f"{int(f.rejected.sum())} / {int(np.isfinite(d.observations[..., 0]).sum())} | {cells[0]} | "
+            print(f"| {name} | {method} | {np.nanmedian(diff):.1e} | {np.nanmax(diff):.1e} | {f.noise.std:.3f} | "
+                  f"{int(f.observations.rejected_mask().sum())} / {int(np.isfinite(d.observations[..., 0]).sum())} | {cells[0]} | "
                   f"{cells[1]} | {seconds:.2f} |")
     print(f"(χ²(2) median {stats.chi2.median(2):.3f}, χ²(3) median {stats.chi2.median(3):.3f})")
 
@@ -86,25 +86,25 @@ def synthetic() -> None:
     for method in FUSION_METHODS:
         f = fuse(s.observations, s.cameras, method=method, history=True)
         results[method] = f
-        ok = f.fused
+        ok = f.reconstructed
         e = f.points[ok] - s.points[ok]
-        n = nees(e, f.covariances[ok])
-        first = f.history.first()
+        n = nees(e, f.point_covariances[ok])
+        first = f.details.history.first()
         good = np.isfinite(first.estimates).all(axis=1)
         n2 = nees(first.estimates[good] - s.points[first.points[good]], first.covariances[good])
-        z = np.abs(e) / np.sqrt(np.diagonal(f.covariances[ok], axis1=1, axis2=2))
-        recall = (f.rejected & s.outliers).sum() / s.outliers.sum()
-        false = (f.rejected & ~s.outliers).sum() / (observed & ~s.outliers).sum()
-        print(f"| {method} | {ok.sum()} | {f.pixel_std:.3f} | {n.mean():.2f}, {np.median(n):.2f} | "
+        z = np.abs(e) / np.sqrt(np.diagonal(f.point_covariances[ok], axis1=1, axis2=2))
+        recall = (f.observations.rejected_mask() & s.outliers).sum() / s.outliers.sum()
+        false = (f.observations.rejected_mask() & ~s.outliers).sum() / (observed & ~s.outliers).sum()
+        print(f"| {method} | {ok.sum()} | {f.noise.std:.3f} | {n.mean():.2f}, {np.median(n):.2f} | "
               f"{n2.mean():.2f}, {np.median(n2):.2f} | {', '.join(f'{v:.3f}' for v in (z <= 1).mean(axis=0))} | "
               f"{', '.join(f'{v:.4f}' for v in (z <= 3).mean(axis=0))} | {recall:.4f} | {false:.4f} |")
     a, b = results["recursive"], results["batch"]
-    both = a.fused & b.fused
-    d = nees(a.points[both] - b.points[both], b.covariances[both])
-    same = (a.rejected == b.rejected).all(axis=0) & both
+    both = a.reconstructed & b.reconstructed
+    d = nees(a.points[both] - b.points[both], b.point_covariances[both])
+    same = (a.observations.rejected_mask() == b.observations.rejected_mask()).all(axis=0) & both
     print(f"\nrecursive vs batch (NEES of the difference under the batch covariance): median {np.median(d):.1e}, "
           f"99th percentile {np.quantile(d, 0.99):.1e}, max {d.max():.1e}; points with the same rejections "
-          f"{same.sum()} of {both.sum()}, among them max {nees(a.points[same] - b.points[same], b.covariances[same]).max():.1e}")
+          f"{same.sum()} of {both.sum()}, among them max {nees(a.points[same] - b.points[same], b.point_covariances[same]).max():.1e}")
     print(f"(NEES of a consistent 3-D estimate: mean 3, median {stats.chi2.median(3):.3f})")
 
 

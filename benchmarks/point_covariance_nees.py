@@ -6,7 +6,7 @@ Usage::
 
 1. Synthetic affine scenes (seeded): 150 points, 20 orthographic frames turning 20° about a
    random axis, 0.5 px Gaussian noise, 30 % of the points seen only in a window of 2–6
-   frames.  Each point's covariance (:func:`kalmansfm.structure.point_uncertainty`) is
+   frames.  Each point's covariance (:func:`kalmansfm.structure.affine.uncertainty.point_uncertainty`) is
    judged against its true position after the best affine map onto the truth (the gauge
    the covariance lives in: the motion's own error moves all points by one common affine
    map, which Σ_p leaves out) and after the best similarity (what a user comparing shapes
@@ -32,9 +32,9 @@ import scipy.io
 from scipy.spatial.transform import Rotation
 
 from kalmansfm.io.frames import read_frames
-from kalmansfm.pipeline import factorize_tracks
-from kalmansfm.pipeline.evaluate import structure_uncertainty
-from kalmansfm.structure import align_affine, align_similarity, factorize, point_uncertainty
+from kalmansfm.structure import align_affine, align_similarity
+from kalmansfm.structure.affine.factorization import factor_affine as factorize
+from kalmansfm.structure.affine.uncertainty import point_uncertainty
 from kalmansfm.tracking import smooth_tracks, track
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -132,8 +132,9 @@ def hotel_tracked() -> None:
     print("== cmu_hotel tracked: 200 detected corners, 51 frames, smoothed, weighted (as kalmansfm demo --input)")
     frames = [np.asarray(f) for f in read_frames(DATA / "cmu_hotel" / "images")]
     tracks = smooth_tracks(track(frames))
-    reconstruction = factorize_tracks(tracks)
-    u = structure_uncertainty(tracks, reconstruction)
+    weights = tracks.observation_weights()
+    reconstruction = factorize(tracks.observations(), weights=weights)
+    u = point_uncertainty(reconstruction, tracks.observations(), weights=weights)
     z = reconstruction.points[:, 2]
     far = np.abs(z) > 1000
     print(f"residual {reconstruction.residual_rms:.3f} px, σ̂ (unit weight) {u.noise_std:.3f}, shape radius "

@@ -44,8 +44,8 @@ def rows_quality(motion: np.ndarray) -> str:
 
 
 def show(name: str, rec, figures: Path | None, ids=None) -> None:
-    print(f"{name}: method {rec.method} ({rec.iterations} it.), singular values {rec.singular_values[:5]}, "
-          f"residual {rec.residual_rms:.4f} px; {rows_quality(rec.motion)}")
+    print(f"{name}: method {rec.method} ({rec.details.iterations} it.), singular values {rec.details.singular_values[:5]}, "
+          f"residual {rec.reprojection_rms:.4f} px; {rows_quality(rec.motion)}")
     for w in rec.warnings:
         print(f"    warning: {w}")
     if figures is not None:
@@ -95,7 +95,7 @@ def shipped(args: argparse.Namespace) -> None:
         holes[np.random.default_rng(seed).random(holes.shape[:2]) < 0.3] = np.nan
         rec = factorize(holes)
         fit = align_similarity(rec.points, complete.points, allow_reflection=True)
-        print(f"  30% missing (seed {seed}): {rec.iterations} ALS it., residual {rec.residual_rms:.4f} px, "
+        print(f"  30% missing (seed {seed}): {rec.details.iterations} ALS it., residual {rec.reprojection_rms:.4f} px, "
               f"shape vs complete {fit.rms / rms_radius(complete.points):.4%} of RMS radius, warnings {rec.warnings}")
 
     print("\n== cmu_hotel")
@@ -141,7 +141,7 @@ def shipped(args: argparse.Namespace) -> None:
     seven = counts == 10
     rec7 = factorize(positions[:, seven])
     fit7 = align_similarity(rec7.points, truth[seven], allow_reflection=True)
-    print(f"  the {seven.sum()} points seen in all 10 views alone: residual {rec7.residual_rms:.3f} px, "
+    print(f"  the {seven.sum()} points seen in all 10 views alone: residual {rec7.reprojection_rms:.3f} px, "
           f"similarity error {fit7.rms / rms_radius(truth[seven]):.2%} of their RMS radius")
 
     print("\n== movi_house_cs231a set1 (2 views, 37 points + 3D)")
@@ -164,10 +164,10 @@ def shipped(args: argparse.Namespace) -> None:
 
 def tracked_row(name: str, tracks, rec, seconds: float) -> str:
     measured = tracks.measured
-    sv = ", ".join(f"{v:.4g}" for v in rec.singular_values[:5])
+    sv = ", ".join(f"{v:.4g}" for v in rec.details.singular_values[:5])
     notes = "; ".join(rec.warnings) if rec.warnings else "–"
     return (f"| {name} | {tracks.positions.shape[0]} × {tracks.positions.shape[1]} | {measured.mean():.0%} | {sv} | "
-            f"{rec.singular_values[2] / rec.singular_values[3]:.3g} | {rec.residual_rms:.3f} | "
+            f"{rec.details.singular_values[2] / rec.details.singular_values[3]:.3g} | {rec.reprojection_rms:.3f} | "
             f"{int(np.isfinite(rec.points).all(axis=1).sum())} | {seconds:.1f} s | {notes} |")
 
 
@@ -216,7 +216,7 @@ def tracked_sequences(images: Path | None) -> None:
                  f"(last frame {np.sqrt(np.nanmean(np.where(measured[-1], drift[-1], np.nan) ** 2)):.2f} px, "
                  f"{measured[-1].sum()} of 30 measured); shape vs the factorization of the labels themselves: "
                  f"{fit.rms / rms_radius(label_rec.points):.2%} of the RMS radius after similarity alignment "
-                 f"(labels' own residual {label_rec.residual_rms:.3f} px)")
+                 f"(labels' own residual {label_rec.reprojection_rms:.3f} px)")
     run("cmu_hotel, detected corners", list(read_frames(DATA / "cmu_hotel" / "images")),
         picture="factorization_cmu_hotel_tracked.png")
     for video, limit in (("tree.avi", None), ("slow.flv", 120)):

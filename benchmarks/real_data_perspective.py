@@ -127,7 +127,7 @@ def real_data(colmap: bool) -> None:
             elapsed = time.perf_counter() - start
             s = score(rec.points, rec.centres, data.points, pose.centers)
             print(f"  {'ours, ' + method:26s} {s['points']:>9s} {s['median']:9.4f} {s['p95']:8.4f} {s['rms']:8.4f} "
-                  f"{s['centres']:10.3f} {rec.reprojection_rms:10.3f} {rec.pixel_std:9.3f} {elapsed:7.2f}")
+                  f"{s['centres']:10.3f} {rec.reprojection_rms:10.3f} {rec.noise.std:9.3f} {elapsed:7.2f}")
             for w in rec.warnings:
                 print(f"      warning: {w}")
         if colmap:
@@ -157,7 +157,7 @@ def synthetic(runs: int, frames: int = 10, arc: float = 40.0) -> None:
             out = compare_in_gauge(rec.points[ok], rec.point_covariances[ok], s.points[ok],
                                    centres=rec.centres[reg], reference_centres=s.centres[reg],
                                    **({} if method != "batch" else dict(
-                                       rotations=rec.rotations[reg], camera_covariances=rec.camera_covariances[reg],
+                                       rotations=rec.rotations[reg], camera_covariances=rec.pose_covariances[reg],
                                        reference_rotations=s.rotations[reg])))
             nees.append(out.point_nees)
             centre.append(np.linalg.norm(out.centre_errors, axis=1).max() / s.viewing_distance * 100)

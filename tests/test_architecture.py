@@ -158,3 +158,59 @@ def test_function_level_and_relative_imports_are_seen(tmp_path):
 @pytest.mark.parametrize("room", sorted(r for r in LAYERS if r and r != "__main__"))
 def test_the_layer_map_names_real_modules(room):
     assert (PACKAGE / room).is_dir() or (PACKAGE / f"{room}.py").is_file()
+
+
+#: Inside structure/, the wings and the record on top of them: a wing imports only lower floors, never a sibling.
+STRUCTURE_FLOORS: dict[str, int] = {
+    "points": 0,  # the point status every method shares
+    "reconstruction": 1,  # the one record every method returns
+    "geometry": 2,  # cameras, rotations, alignment, two-view triangulation
+    "affine": 3,  # factorization (affine cameras)
+    "fusion": 3,  # known cameras
+    "perspective": 4,  # calibrated, unknown motion: uses fusion to triangulate
+    "": 5,  # structure/__init__.py, the face
+}
+
+
+def wing_of(module: str) -> tuple[str, int]:
+    """(wing, floor) of a module of kalmansfm.structure."""
+    parts = module.split(".")
+    wing = parts[2] if len(parts) > 2 else ""
+    if wing not in STRUCTURE_FLOORS:
+        raise KeyError(f"{module} belongs to no wing of structure/; add {wing!r} to STRUCTURE_FLOORS")
+    return wing, STRUCTURE_FLOORS[wing]
+
+
+def wing_violations(graph: dict[str, set[str]]) -> list[str]:
+    """Imports inside structure/ that run up a floor or across to a sibling wing."""
+    found = []
+    for module, targets in sorted(graph.items()):
+        if not module.startswith("kalmansfm.structure"):
+            continue
+        wing, floor = wing_of(module)
+        for target in sorted(t for t in targets if t.startswith("kalmansfm.structure")):
+            try:
+                other, other_floor = wing_of(target)
+            except KeyError:
+                other, other_floor = wing_of(target.rsplit(".", 1)[0])
+            if other != wing and (other_floor > floor or other_floor == floor):
+                found.append(f"{module} ({wing}, floor {floor}) imports {target} ({other}, floor {other_floor})")
+    return found
+
+
+def test_structure_wings_import_only_downwards():
+    assert wing_violations(package_graph()) == []
+
+
+def test_the_wing_check_catches_a_sibling_and_an_upward_import():
+    graph = {
+        "kalmansfm.structure.affine.factorization": {"kalmansfm.structure.fusion.fuse"},
+        "kalmansfm.structure.geometry.pinhole": {"kalmansfm.structure.reconstruction", "kalmansfm.structure.points"},
+        "kalmansfm.structure.reconstruction": {"kalmansfm.structure.perspective.settings"},
+    }
+    assert wing_violations(graph) == [
+        "kalmansfm.structure.affine.factorization (affine, floor 3) imports kalmansfm.structure.fusion.fuse "
+        "(fusion, floor 3)",
+        "kalmansfm.structure.reconstruction (reconstruction, floor 1) imports kalmansfm.structure.perspective.settings "
+        "(perspective, floor 4)",
+    ]

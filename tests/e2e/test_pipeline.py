@@ -44,6 +44,27 @@ def test_summary_matches_the_returned_objects(demo_run):
     assert len(s.tracking.per_track) == demo_run.tracks.track_ids.size
 
 
+def test_tracking_error_is_counted_once_over_the_measured_visible_estimates(demo_run):
+    """The summary's error figures come from one population; the report shows them, it does not recount."""
+    truth = demo_run.summary.truth
+    scene = demo_run.scene
+    tracks = demo_run.tracks
+    true = scene.positions[:, np.searchsorted(scene.track_ids, tracks.track_ids)]
+    visible = scene.visible[:, np.searchsorted(scene.track_ids, tracks.track_ids)]
+    pick = tracks.measured & visible
+    errors = np.linalg.norm(tracks.positions - true, axis=-1)
+    assert truth.tracking_rms_error_px == pytest.approx(np.sqrt(np.mean(errors[pick] ** 2)), rel=1e-12)
+    assert truth.median_error_px == pytest.approx(np.median(errors[pick]), rel=1e-12)
+    assert truth.max_error_px == pytest.approx(errors[pick].max(), rel=1e-12)
+    per_frame = [np.sqrt(np.mean(errors[f][pick[f]] ** 2)) if pick[f].any() else None for f in range(len(pick))]
+    np.testing.assert_allclose(np.array(truth.rms_error_per_frame_px, dtype=float),
+                               np.array(per_frame, dtype=float), rtol=1e-12)
+    from kalmansfm.report import build_report
+
+    html = build_report(demo_run.out_dir).read_text()
+    assert f"<td class=\"num\" data-sort=\"{truth.max_error_px}\">{truth.max_error_px:.4g}</td>" in html
+
+
 def test_demo_command_prints_the_summary_and_the_report_path(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--frames", "12", "--quiet"]) == 0

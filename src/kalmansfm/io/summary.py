@@ -206,6 +206,7 @@ class TruthComparison:
     tracking_rms_error_px : RMS distance of the measured estimates from the true positions
         (over the frame-track pairs where the point is visible and was measured).
     within_2px : fraction of those estimates within 2 px.
+    median_error_px, max_error_px : the median and the largest of those distances.
     visible_measured_fraction : of the visible frame-track pairs, the fraction measured.
     rms_error_per_frame_px : per frame (None where nothing was compared).
     per_track_rms_error_px : per column of the tracks (None where nothing was compared).
@@ -217,6 +218,8 @@ class TruthComparison:
 
     tracking_rms_error_px: float | None = None
     within_2px: float | None = None
+    median_error_px: float | None = None
+    max_error_px: float | None = None
     visible_measured_fraction: float | None = None
     rms_error_per_frame_px: tuple[float | None, ...] = ()
     per_track_rms_error_px: tuple[float | None, ...] = ()

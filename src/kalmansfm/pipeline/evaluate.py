@@ -189,6 +189,8 @@ def compare_with_truth(tracks: Tracks, reconstruction: Reconstruction | None, tr
     if measured.any():
         comparison["tracking_rms_error_px"] = float(np.sqrt(np.mean(errors[measured] ** 2)))
         comparison["within_2px"] = float(np.mean(errors[measured] <= 2.0))
+        comparison["median_error_px"] = float(np.median(errors[measured]))
+        comparison["max_error_px"] = float(np.max(errors[measured]))
     if reconstruction is not None and truth.points_3d is not None:
         comparison.update(_compare_shape(tracks, reconstruction, truth))
     return TruthComparison(**comparison)

@@ -33,7 +33,6 @@ __all__ = [
     "shape_views_figure",
     "camera_rotations",
     "camera_rotation_figure",
-    "track_error_per_frame",
     "track_error_figure",
     "rotation_error_figure",
     "fusion_convergence_figure",
@@ -318,24 +317,14 @@ def camera_rotation_figure(motion: CameraMotion, rotations: tuple[np.ndarray, np
     return _figure_png(fig)
 
 
-def track_error_per_frame(positions: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame RMS and per-(frame, track) distance between estimates and ground truth.
-
-    Returns
-    -------
-    rms : (F,) float, NaN in frames with no comparable track
-    distances : (F, P) float, NaN where either is missing
-    """
+def track_error_figure(positions: np.ndarray, truth: np.ndarray, track_ids: Sequence[int],
+                       rms_per_frame: np.ndarray) -> bytes:
+    """Tracking error against ground truth per frame: each track (``track_ids``) faintly, and the RMS over
+    tracks the run's summary measured (``rms_per_frame``, NaN where none) in black."""
     distances = np.linalg.norm(positions - truth, axis=-1)
-    counts = np.isfinite(distances).sum(axis=1)
-    sums = np.nansum(distances**2, axis=1)
-    rms = np.where(counts > 0, np.sqrt(sums / np.maximum(counts, 1)), np.nan)
-    return rms, distances
-
-
-def track_error_figure(positions: np.ndarray, truth: np.ndarray, track_ids: Sequence[int]) -> bytes:
-    """Tracking error against ground truth per frame: RMS over tracks and each track (``track_ids``) faintly."""
-    rms, distances = track_error_per_frame(positions, truth)
+    rms = np.asarray(rms_per_frame, dtype=float)
+    if rms.shape != distances.shape[:1]:  # a summary without per-frame figures: the tracks alone
+        rms = np.full(distances.shape[0], np.nan)
     frames = np.arange(len(rms))
     fig, ax = plt.subplots(figsize=(7, 3))
     for p, color in enumerate(track_colors(track_ids)):

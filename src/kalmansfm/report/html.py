@@ -429,18 +429,23 @@ def _section_ground_truth(run: RunFolder) -> str | None:
         return None
     parts = []
     if run.tracks is not None and run.ground_truth_tracks is not None:
-        rms, distances = figures.track_error_per_frame(run.tracks.positions, run.ground_truth_tracks)
-        facts: list[tuple[str, Any]] = [("frames with a comparison", int(np.isfinite(rms).sum()))]
-        if np.isfinite(distances).any():
-            facts.append(("median error, every estimate (px)", float(np.nanmedian(distances))))
-            facts.append(("worst error, every estimate (px)", float(np.nanmax(distances))))
-        facts.append(("RMS error of the measured estimates (px)", truth.tracking_rms_error_px))
-        parts.append("<h3>Tracking error</h3>" + m.table(["", "value"], facts))
+        per_frame = np.array([np.nan if v is None else v for v in truth.rms_error_per_frame_px], dtype=float)
+        facts: list[tuple[str, Any]] = [
+            ("frames with a comparison", int(np.isfinite(per_frame).sum())),
+            ("RMS error of the measured estimates (px)", truth.tracking_rms_error_px),
+            ("median error (px)", truth.median_error_px),
+            ("worst error (px)", truth.max_error_px),
+            ("within 2 px", truth.within_2px),
+        ]
+        parts.append("<h3>Tracking error</h3><p class=\"note\">Over the measured estimates of visible points, as "
+                     "the summary counts them.</p>" + m.table(["", "value"], facts))
+        measured = np.where(run.tracks.measured[..., None], run.tracks.positions, np.nan)
         parts.append(
             m.figure(
-                figures.track_error_figure(run.tracks.positions, run.ground_truth_tracks, run.tracks.track_ids),
-                "Distance between each track's estimate and the true image position per frame (faint lines, "
-                "one per track) and their RMS (black); frames where the point is not visible are left out.",
+                figures.track_error_figure(measured, run.ground_truth_tracks, run.tracks.track_ids, per_frame),
+                "Distance between each track's measured estimate and the true image position per frame (faint "
+                "lines, one per track) and their RMS (black); frames where the point is not visible or was not "
+                "measured are left out.",
             )
         )
     matched = _matched_truth(run)

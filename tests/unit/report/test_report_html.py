@@ -11,7 +11,7 @@ from kalmansfm.io import RunSummary, load_run, summary_json
 from kalmansfm.io.structure import CameraMotion
 from kalmansfm.report import build_report
 from kalmansfm.report.drawing import gate_ellipses, render_tracked_frames
-from kalmansfm.report.figures import camera_rotations, survival_figure, track_error_per_frame
+from kalmansfm.report.figures import camera_rotations, survival_figure
 from kalmansfm.tracking import TrackerSettings, Tracks
 
 _SUMMARY = summary_json(RunSummary(command="demo", input="x")).replace("\n", "")
@@ -222,14 +222,6 @@ def test_camera_rotations_recover_a_pure_pan():
     np.testing.assert_allclose(angles[:, 1], np.arange(6) * 4.0, atol=1e-9)
     np.testing.assert_allclose(angles[:, [0, 2]], 0.0, atol=1e-9)
     np.testing.assert_allclose(total, np.arange(6) * 4.0, atol=1e-9)
-
-
-def test_track_error_per_frame_is_rms_over_comparable_tracks():
-    positions = np.array([[[0.0, 0.0], [3.0, 4.0]], [[np.nan, np.nan], [1.0, 0.0]]])
-    truth = np.array([[[0.0, 0.0], [0.0, 0.0]], [[0.0, 0.0], [0.0, 0.0]]])
-    rms, distances = track_error_per_frame(positions, truth)
-    np.testing.assert_allclose(rms, [np.sqrt(12.5), 1.0])
-    assert np.isnan(distances[1, 0]) and distances[0, 1] == 5.0
 
 
 def test_player_is_subsampled_to_stay_within_its_size_budget(tmp_path, monkeypatch):
