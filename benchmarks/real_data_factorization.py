@@ -196,7 +196,7 @@ def tracked_sequences(images: Path | None) -> None:
         block = None
         if everywhere.sum() >= 4:
             block = factorize(tracks.positions[:, everywhere])
-            sub = SimpleNamespace(positions=tracks.positions[:, everywhere], status=tracks.status[:, everywhere])
+            sub = SimpleNamespace(positions=tracks.positions[:, everywhere], measured=tracks.measured[:, everywhere])
             rows.append(tracked_row(f"  same, only the {int(everywhere.sum())} tracks measured in every frame", sub,
                                     block, t_track))
         if picture and images is not None and block is not None:
