@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 
 from ..errors import InvalidInputError
 from ..pipeline import Affine, Auto, Perspective, ReconstructRequest, run_reconstruct
@@ -80,12 +79,12 @@ def run(args: argparse.Namespace) -> int:
             camera = perspective if args.camera == "perspective" else Auto(perspective, affine)
         result = run_reconstruct(ReconstructRequest(args.tracks, args.out, camera, smooth=args.smooth,
                                                     plot=not args.no_plot))
-    s, r = result.summary.reconstruction, result.reconstruction
+    s = result.summary.reconstruction
     assert s is not None  # a reconstruct run records its reconstruction
     if s.kind == "perspective":
         _print_perspective(result)
         return 0
-    shown = np.array2string(r.details.singular_values[:6], precision=4, separator=", ")
+    shown = ", ".join(f"{v:.4g}" for v in s.singular_values[:5])  # as demo prints them
     print(f"frames: {s.frames}  tracks: {s.points}  method: {s.method}"
           + (f" ({s.iterations} iterations)" if s.method == "als" else "")
           + ("  weighted by tracker std" if s.weighted else "")

@@ -119,6 +119,9 @@ JS = r"""
     var view = start, zoom = 1;
     var showTruth = document.getElementById("view3d-truth");
     var showUnreliable = document.getElementById("view3d-unreliable");
+    var colourBy = document.getElementById("view3d-colour");
+    // labels crowd a large cloud into a blob: drawn for small ones, else only for the point under the pointer
+    var allLabels = data.points.length <= 60, hover = -1, drawn = [];
     var cameraSlider = document.getElementById("view3d-camera");
     var cameraLabel = document.getElementById("view3d-camera-label");
 
@@ -132,11 +135,13 @@ JS = r"""
       var s = zoom * 0.42 * Math.min(w, h) / data.radius;
       var cx = w / 2, cy = h / 2;
       var items = [];
+      var palette = colourBy && colourBy.value === "uncertainty" && data.uncertainty_colors ? data.uncertainty_colors
+        : data.colors;
       data.points.forEach(function (p, k) {
         var weak = data.unreliable && data.unreliable[k];
         if (weak && !(showUnreliable && showUnreliable.checked)) { return; }
         var q = apply(view, p);
-        items.push({ q: q, kind: "point", color: data.colors[k], label: data.labels[k], weak: weak });
+        items.push({ q: q, kind: "point", color: palette[k], label: data.labels[k], weak: weak, index: k });
       });
       if (data.truth && (!showTruth || showTruth.checked)) {
         data.truth.forEach(function (p) { items.push({ q: apply(view, p), kind: "truth" }); });
@@ -159,18 +164,21 @@ JS = r"""
       }
       items.sort(function (a, b) { return b.q[2] - a.q[2]; });  // far first
       var depthSpan = 2 * 1.6 * data.radius;
+      drawn = [];
       items.forEach(function (it) {
         var x = cx + s * it.q[0], y = cy + s * it.q[1];
+        if (it.kind === "point") { drawn.push([x, y, it.index]); }
+        var labelled = it.kind === "point" && (allLabels || it.index === hover);
         var near = 1 - (it.q[2] / depthSpan);  // bigger when closer to the viewer
         ctx.beginPath();
         if (it.kind === "point" && it.weak) {
           ctx.strokeStyle = it.color; ctx.lineWidth = 2;
           ctx.arc(x, y, Math.max(2.5, 5 * near), 0, 2 * Math.PI); ctx.stroke();
-          ctx.fillStyle = "#888"; ctx.font = "11px sans-serif"; ctx.fillText(String(it.label), x + 7, y - 5);
+          if (labelled) { ctx.fillStyle = "#888"; ctx.font = "11px sans-serif"; ctx.fillText(String(it.label), x + 7, y - 5); }
         } else if (it.kind === "point") {
           ctx.fillStyle = it.color; ctx.strokeStyle = "#222"; ctx.lineWidth = 1;
           ctx.arc(x, y, Math.max(2.5, 5 * near), 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-          ctx.fillStyle = "#333"; ctx.font = "11px sans-serif"; ctx.fillText(String(it.label), x + 7, y - 5);
+          if (labelled) { ctx.fillStyle = "#333"; ctx.font = "11px sans-serif"; ctx.fillText(String(it.label), x + 7, y - 5); }
         } else if (it.kind === "truth") {
           ctx.strokeStyle = "#111"; ctx.lineWidth = 1.2;
           ctx.arc(x, y, Math.max(4, 8 * near), 0, 2 * Math.PI); ctx.stroke();
@@ -195,7 +203,17 @@ JS = r"""
       if (canvas.setPointerCapture) { canvas.setPointerCapture(e.pointerId); }
     });
     canvas.addEventListener("pointermove", function (e) {
-      if (!dragging) { return; }
+      if (!dragging) {
+        if (allLabels) { return; }
+        var box = canvas.getBoundingClientRect(), px = e.clientX - box.left, py = e.clientY - box.top;
+        var best = -1, bestD = 64;  // within 8 px
+        drawn.forEach(function (d) {
+          var dd = (d[0] - px) * (d[0] - px) + (d[1] - py) * (d[1] - py);
+          if (dd < bestD) { bestD = dd; best = d[2]; }
+        });
+        if (best !== hover) { hover = best; draw(); }
+        return;
+      }
       var dx = e.clientX - lastX, dy = e.clientY - lastY;
       lastX = e.clientX; lastY = e.clientY;
       view = mul(mul(rotY(-dx * 0.01), rotX(dy * 0.01)), view);
@@ -213,6 +231,7 @@ JS = r"""
       view = start; zoom = 1; draw();
     });
     if (showTruth) { showTruth.addEventListener("change", draw); }
+    if (colourBy) { colourBy.addEventListener("change", draw); }
     if (showUnreliable) { showUnreliable.addEventListener("change", draw); }
     if (cameraSlider && data.cameras && data.cameras.length) {
       cameraSlider.max = String(data.cameras.length - 1);

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import warnings
 from collections.abc import Sequence
+from typing import Any
 
 import matplotlib
 
@@ -83,8 +84,17 @@ def covariance_trace_figure(tracks: Tracks) -> bytes | None:
     ax.set_xlabel("frame")
     ax.set_ylabel("trace of state covariance")
     ax.grid(alpha=0.3)
-    ax.legend()
+    if tracks.smoothed is not False:
+        # a smoothed estimate near the end has fewer later frames to lean on: the trace rises to the filter's
+        ax.set_title("smoothed tracks: the last frames have no later measurements, so their uncertainty rises "
+                     "to the filter's (the smoother's end effect)", fontsize=8)
+    _legend_below(ax, ncol=3)
     return _figure_png(fig)
+
+
+def _legend_below(ax: Any, ncol: int = 3, **kwargs: Any) -> None:
+    """The axes' legend under the plot, where it hides no data."""
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=ncol, frameon=False, fontsize=8, **kwargs)
 
 
 def status_timeline_figure(tracks: Tracks) -> bytes:
@@ -126,7 +136,7 @@ def survival_figure(tracks: Tracks) -> bytes | None:
     left.set_xlabel("frame")
     left.set_ylabel("share of frame 0's tracks")
     left.grid(alpha=0.3)
-    left.legend()
+    _legend_below(left, ncol=2)
     ever = measured.any(axis=0)
     first = np.argmax(measured, axis=0)[ever]
     last = (tracks.n_frames - 1 - np.argmax(measured[::-1], axis=0))[ever]
@@ -307,13 +317,13 @@ def camera_rotation_figure(motion: CameraMotion, rotations: tuple[np.ndarray, np
     left.set_xlabel("frame")
     left.set_ylabel("degrees from frame %d" % motion.frames[0])
     left.grid(alpha=0.3)
-    left.legend(fontsize=8)
+    _legend_below(left, ncol=2)
     right.plot(motion.frames, motion.translations[:, 0], marker=".", label="t_x")
     right.plot(motion.frames, motion.translations[:, 1], marker=".", label="t_y")
     right.set_xlabel("frame")
     right.set_ylabel("image translation (px)")
     right.grid(alpha=0.3)
-    right.legend(fontsize=8)
+    _legend_below(right, ncol=2)
     return _figure_png(fig)
 
 
@@ -334,7 +344,7 @@ def track_error_figure(positions: np.ndarray, truth: np.ndarray, track_ids: Sequ
     ax.set_xlabel("frame")
     ax.set_ylabel("error (px)")
     ax.grid(alpha=0.3)
-    ax.legend()
+    _legend_below(ax)
     return _figure_png(fig)
 
 

@@ -179,7 +179,7 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
     if len(player_indices) > 1:
         payload = json.dumps([{"frame": f, "src": rendered[f]} for f in player_indices], allow_nan=False)
         stride_note = (
-            f" (every {n_frames / len(player_indices):.1f}th frame of {n_frames})"
+            f" ({len(player_indices)} of the {n_frames} frames, evenly spaced)"
             if len(player_indices) < n_frames
             else ""
         )
@@ -303,20 +303,19 @@ def _shape_payload(run: RunFolder, structure: PointTable, truth_here: np.ndarray
     # the view's scale: the farthest of the points inside the robust axes (a stray point does not shrink the rest)
     inside = np.abs(core - centre).max(axis=1) <= half
     radius = float(np.linalg.norm(core[inside] - centre, axis=1).max()) if inside.any() else half
-    colors = track_colors(structure.track_ids)
-    if _by_uncertainty(run):
-        # points coloured by their uncertainty (viridis, log scale)
-        colors = figures.uncertainty_colors(rms_std(structure.covariances))[0]
     payload: dict[str, Any] = {
         "points": np.round(points, 6).tolist(),
         "labels": structure.track_ids.tolist(),
-        "colors": colors,
+        "colors": track_colors(structure.track_ids),
         "unreliable": (~reliable).tolist(),
         "radius": radius or 1.0,
         "truth": None if truth_here is None else np.round(truth_here - centre, 6).tolist(),
         "cameras": [],
         "camera_frames": [],
     }
+    if structure.covariances is not None:
+        # the same points coloured by their uncertainty √(tr Σ / 3) (viridis, log scale)
+        payload["uncertainty_colors"] = figures.uncertainty_colors(rms_std(structure.covariances))[0]
     if motion_rotations is not None:
         payload["cameras"] = np.round(motion_rotations, 6).tolist()
         payload["camera_frames"] = run.motion.frames.tolist()
@@ -369,10 +368,21 @@ def _section_shape(run: RunFolder, motion_rotations: np.ndarray | None) -> str |
         if run.motion is not None or run.cameras is not None
         else ""
     )
-    squares = ("the recovered camera centres (the camera path)" if run.cameras is not None
-               else "the direction each camera looked from (the recovered camera path)")
-    if _by_uncertainty(run):
-        squares += "; points coloured by their uncertainty, dark = certain, yellow = uncertain"
+    if run.cameras is not None:
+        squares = "Purple squares: the camera centres (the camera path). "
+    elif run.motion is not None:
+        squares = "Purple squares: the direction each camera looked from (the recovered camera path). "
+    else:
+        squares = ""
+    colour_choice = ""
+    if structure.covariances is not None:
+        by_uncertainty = _by_uncertainty(run)
+        colour_choice = (
+            '<label>colour: <select id="view3d-colour">'
+            f'<option value="track"{"" if by_uncertainty else " selected"}>track (as in the player)</option>'
+            f'<option value="uncertainty"{" selected" if by_uncertainty else ""}>uncertainty √(tr Σ / 3): dark = '
+            "certain, yellow = uncertain</option></select></label>"
+        )
     unreliable = int((~structure.reliable).sum())
     unreliable_toggle = ""
     if unreliable:
@@ -387,11 +397,12 @@ def _section_shape(run: RunFolder, motion_rotations: np.ndarray | None) -> str |
             "is barely constrained by the frames that saw them. They are left out of the plots; the box below "
             "shows them in the interactive view.</p>"
         )
+    labels = "" if len(structure.track_ids) <= 60 else ", point under the pointer: its track id"
     parts.append(
         '<h3 id="interactive-3d">Interactive view</h3>'
-        f'<p class="note">Drag to rotate, wheel to zoom. Purple squares: {squares}.</p>'
+        f'<p class="note">Drag to rotate, wheel to zoom{labels}. {squares}</p>'
         f'<div class="controls"><button id="view3d-reset" type="button">reset</button>{truth_toggle}'
-        f"{unreliable_toggle}{camera_slider}</div>"
+        f"{unreliable_toggle}{colour_choice}{camera_slider}</div>"
         '<canvas id="view3d" class="view3d" width="720" height="440"></canvas>'
         f'<script type="application/json" id="shape-data">{payload}</script>'
         "<noscript><p class='note'>The interactive view needs JavaScript; the fixed views follow.</p></noscript>"
@@ -518,7 +529,6 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
     motion_rotations = (camera_rotation_matrices(run.motion.rows)
                         if run.motion is not None and len(run.motion.frames) else None)
     candidates = [
-        ("parameters", "Parameters", lambda: _section_parameters(run)),
         ("sequence", "Sequence with tracks and gates", lambda: _section_sequence(run, frames, progress)),
         ("uncertainty", "Uncertainty over time", lambda: _section_uncertainty(run)),
         ("tracks", "Tracking statistics", lambda: _section_tracks(run)),
@@ -527,6 +537,7 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         ("motion", "Recovered camera motion", lambda: _section_motion(run, motion_rotations)),
         ("ground-truth", "Comparison with ground truth", lambda: _section_ground_truth(run)),
         ("tables", "Tables", lambda: _section_tables(run)),
+        ("parameters", "Parameters", lambda: _section_parameters(run)),
         ("files", "Files", lambda: _section_files(run)),
     ]
     sections = []
