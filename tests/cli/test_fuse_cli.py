@@ -8,7 +8,7 @@ import pytest
 
 from kalmansfm.cli.main import main
 from kalmansfm.io import load_run, read_summary
-from kalmansfm.io.cameras import MATRIX_COLUMNS, cameras_csv
+from kalmansfm.io.cameras import MATRIX_COLUMNS, cameras_csv, read_cameras
 from kalmansfm.io.fusion import HISTORY_COLUMNS, REJECTED_COLUMNS
 from kalmansfm.io.structure import STRUCTURE_COLUMNS, read_points_table
 from kalmansfm.io.tracks import observations_csv
@@ -47,7 +47,7 @@ def test_fuse_writes_the_run_folder_and_its_report(scene_files, capsys):
     assert "fused: 60" in printed and "pixel noise: 0.4" in printed and "estimated" in printed
     run = folder / "run"
     assert sorted(p.name for p in run.iterdir()) == [
-        "fusion.png", "history.csv", "rejected.csv", "structure.csv", "structure.ply", "summary.json"]
+        "cameras.csv", "fusion.png", "history.csv", "rejected.csv", "structure.csv", "structure.ply", "summary.json"]
     lines = (run / "structure.csv").read_text().splitlines()
     assert lines[0] == ",".join(STRUCTURE_COLUMNS) and len(lines) == 61
     assert (run / "history.csv").read_text().splitlines()[0] == ",".join(HISTORY_COLUMNS)
@@ -55,6 +55,8 @@ def test_fuse_writes_the_run_folder_and_its_report(scene_files, capsys):
     assert rejected[0] == ",".join(REJECTED_COLUMNS) and len(rejected) - 1 >= 0.8 * s.outliers.sum()
     # the history's view column holds the frame numbers of the cameras
     assert {int(r.split(",")[0]) for r in (run / "history.csv").read_text().splitlines()[1:]} <= set(range(11, 15))
+    # the cameras it was given, as given: the run folder is a whole model (and re-fuses to the same points)
+    assert read_cameras(run / "cameras.csv").matrices.tolist() == read_cameras(folder / "cameras.csv").matrices.tolist()
     ply = (run / "structure.ply").read_text()
     assert "property float uncertainty" in ply and "element vertex 60" in ply
     points = read_points_table(run / "structure.csv")

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..io.atomic import OutputDirectory
-from ..io.cameras import pose_cameras_csv
+from ..io.cameras import cameras_csv, pose_cameras_csv
 from ..io.fusion import history_csv, rejected_csv
 from ..io.structure import motion_csv, structure_csv, structure_ply
 from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
@@ -27,7 +27,7 @@ from ..report.figures import (
     fusion_convergence_figure,
     shape_views_figure,
 )
-from ..structure import Reconstruction, rms_std
+from ..structure import CameraSet, Reconstruction, rms_std
 from ..tracking.tracks import Tracks
 
 __all__ = ["Stopwatch", "stage_reconstruction", "stage_summary", "stage_tracking"]
@@ -100,9 +100,9 @@ def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: 
 
     * affine cameras: ``motion.csv`` (camera rows and image translation per frame) and
       ``structure.png`` (the reliable points; the unreliable ones are counted);
-    * estimated pinhole cameras (with pose covariances): ``cameras.csv`` (K, R, t of the registered
-      frames, with ``rotation_std_deg`` and ``centre_std``) and ``reconstruction.png`` (camera path,
-      points coloured by uncertainty);
+    * pinhole cameras: ``cameras.csv`` — cameras given to a fusion as their 3 × 4 matrices (sign
+      kept: a mirrored frame stays mirrored), estimated ones as K, R, t with ``rotation_std_deg`` and
+      ``centre_std``, and then ``reconstruction.png`` (the camera path, points coloured by uncertainty);
     * a fusion history: ``history.csv`` and ``fusion.png`` (uncertainty against views);
       observations rejected by a fusion's outlier test: ``rejected.csv``.
 
@@ -126,14 +126,18 @@ def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: 
             out.write_bytes("structure.png", shape_views_figure(rec.points[shown], ids[shown].tolist(),
                                                                hidden=int((estimated & ~shown).sum())))
             names.append("structure.png")
-    elif rec.pose_covariances is not None:
-        out.write_text("cameras.csv", pose_cameras_csv(
-            frames[registered], rec.intrinsics[registered], rec.rotations[registered], rec.translations[registered],
-            rotation_std_deg=np.degrees(rms_std(rec.pose_covariances[registered, :3, :3])),
-            centre_std=rms_std(rec.pose_covariances[registered, 3:, 3:])))
+    else:
+        if rec.pose_covariances is None:  # cameras given, not estimated: as 3 × 4 matrices, their sign kept
+            text = cameras_csv(CameraSet(rec.projections[registered], frames[registered]))
+        else:
+            text = pose_cameras_csv(frames[registered], rec.intrinsics[registered], rec.rotations[registered],
+                                    rec.translations[registered],
+                                    rotation_std_deg=np.degrees(rms_std(rec.pose_covariances[registered, :3, :3])),
+                                    centre_std=rms_std(rec.pose_covariances[registered, 3:, 3:]))
+        out.write_text("cameras.csv", text)
         names.append("cameras.csv")
         ok = rec.reconstructed
-        if plot and ok.any() and registered.any():
+        if plot and ok.any() and registered.any() and rec.pose_covariances is not None:
             out.write_bytes("reconstruction.png", camera_path_figure(
                 rec.centres[registered], frames[registered].tolist(), rec.points[ok], rec.point_std[ok]))
             names.append("reconstruction.png")
