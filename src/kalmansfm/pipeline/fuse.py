@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +17,7 @@ from ..structure import Reconstruction
 from ..structure.fusion import fuse
 from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .evaluate import reconstruction_metrics
+from .reconstruct import tracks_file
 from .requests import FuseRequest, request_options
 from .stage import Stopwatch, stage_reconstruction, stage_summary
 
@@ -39,7 +40,7 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     """Fuse the tracks of ``request.tracks`` with the cameras of ``request.cameras`` and write the run folder.
 
     Writes ``structure.csv`` (points, covariances, views, reprojection RMS, status),
-    ``history.csv``, ``rejected.csv``, ``structure.ply`` (with a per-vertex uncertainty),
+    ``history.csv``, ``rejected.csv``, ``cameras.csv`` (the cameras as given), ``structure.ply`` (with a per-vertex uncertainty),
     ``fusion.png`` and ``summary.json`` to ``request.out``, all or nothing
     (:func:`~kalmansfm.pipeline.stage.stage_reconstruction`).  Frames of the tracks without a
     camera are skipped with one warning; only measured rows of the tracks are observations.
@@ -57,8 +58,9 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     >>> _ = (folder / "tracks.csv").write_text("frame,track_id,x,y\\n" + "\\n".join(rows) + "\\n")
     >>> run = run_fuse(FuseRequest(folder / "tracks.csv", folder / "cameras.csv", folder / "fused", plot=False))
     >>> run.summary.reconstruction.reconstructed, sorted(run.summary.files)[:3]
-    (30, ['history.csv', 'rejected.csv', 'structure.csv'])
+    (30, ['cameras.csv', 'history.csv', 'rejected.csv'])
     """
+    request = replace(request, tracks=tracks_file(request.tracks))
     settings = request.settings
     check_cluster(request.scheduler, request.workers)
     inputs = [request.tracks, request.cameras]

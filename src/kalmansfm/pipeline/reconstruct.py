@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .._version import __version__
@@ -28,7 +28,7 @@ from .perspective import resolve_intrinsics
 from .requests import Affine, Auto, Perspective, ReconstructRequest, request_options
 from .stage import Stopwatch, stage_reconstruction, stage_summary
 
-__all__ = ["ReconstructRun", "read_tracks_for_factorization", "run_reconstruct"]
+__all__ = ["ReconstructRun", "read_tracks_for_factorization", "run_reconstruct", "tracks_file"]
 
 log = logging.getLogger("kalmansfm")
 
@@ -46,6 +46,30 @@ class ReconstructRun:
     reconstruction: Reconstruction
     summary: RunSummary
     alternative: Reconstruction | None = None
+
+
+def tracks_file(path: str | os.PathLike[str]) -> Path:
+    """The tracks file to read for ``path``: the path itself, or the ``tracks.npz`` of a run folder.
+
+    A run of ``track`` or ``demo`` keeps its tracks in ``tracks.npz``; giving its folder reads that.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> run = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (run / "tracks.npz").write_bytes(b"")
+    >>> tracks_file(run).name
+    'tracks.npz'
+    """
+    path = Path(path)
+    if path.is_dir():
+        inside = path / "tracks.npz"
+        if inside.is_file():
+            log.info("reading %s, the tracks of the run folder %s", inside, path)
+            return inside
+        raise InvalidInputError(f"{path}: a folder without tracks.npz; give a tracks file (tracks.npz, tracks.csv "
+                                "or a frame,track_id,x,y CSV) or the folder of a track or demo run")
+    return path
 
 
 def read_tracks_for_factorization(path: str | os.PathLike[str], *, smooth: bool | None = None) -> Tracks:
@@ -118,6 +142,7 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     >>> round(run.summary.reconstruction.reprojection_rms_px, 2)
     2.88
     """
+    request = replace(request, tracks=tracks_file(request.tracks))
     camera = request.camera
     perspective = camera if isinstance(camera, Perspective) else camera.perspective if isinstance(camera, Auto) else None
     affine = camera if isinstance(camera, Affine) else camera.affine if isinstance(camera, Auto) else None
