@@ -20,6 +20,7 @@ own: numbers, counts, truncation, camera models.  Every problem is an
 
 from __future__ import annotations
 
+import itertools
 import struct
 from pathlib import Path
 
@@ -69,6 +70,15 @@ def _numbers(file: Path, line: int, tokens: list[str], what: str, kind: type = f
                                 f"got {' '.join(tokens)!r}") from None
     if kind is float and not np.isfinite(values).all():
         raise InvalidInputError(f"{where(file, line)}: {what} must be finite; got {' '.join(tokens)!r}")
+    return values
+
+
+def _exact_numbers(file: Path, line: int, tokens: list[str], what: str) -> np.ndarray:
+    """Numbers as float64, integers among them exact: a token of 16 or more digits (an id beyond 2⁵³) is refused."""
+    values = _numbers(file, line, tokens, what) if tokens else np.zeros(0)
+    if values.size and np.abs(values).max() >= 2**53:
+        raise InvalidInputError(f"{where(file, line)}: {what}: {np.abs(values).max():.17g} is beyond the 2⁵³ "
+                                f"that ids and coordinates may reach here")
     return values
 
 
@@ -136,13 +146,13 @@ def parse_images_text(text: str, file: Path) -> dict:
         if len(points) % 3:
             raise InvalidInputError(f"{where(file, k)}: the points of image {ids[-1]} must be X Y POINT3D_ID triples; "
                                     f"got {len(points)} numbers")
-        triples = np.array(points, dtype=object).reshape(-1, 3)
-        xy = _numbers(file, k, list(triples[:, :2].ravel()), "X and Y").reshape(-1, 2)
-        point_ids = _numbers(file, k, list(triples[:, 2]), "POINT3D_ID", int)
-        if (point_ids < -1).any():
-            raise InvalidInputError(f"{where(file, k)}: POINT3D_ID must be >= 0, or -1 for none; got {point_ids.min()}")
+        values = _exact_numbers(file, k, points, "X Y POINT3D_ID").reshape(-1, 3)
+        xy, point_ids = values[:, :2], values[:, 2]
+        if not (np.isfinite(xy).all() and (point_ids == np.round(point_ids)).all() and (point_ids >= -1).all()):
+            raise InvalidInputError(f"{where(file, k)}: the points of image {ids[-1]} need finite X, Y and a POINT3D_ID "
+                                    f">= 0 (-1 for none)")
         counts.append(len(xy))
-        blocks.append((xy, point_ids))
+        blocks.append((xy, point_ids.astype(np.int64)))
     return _images(ids, cameras, names, poses, counts, blocks)
 
 
@@ -156,53 +166,58 @@ def _images(ids: list, cameras: list, names: list, poses: list, counts: list, bl
 
 
 def parse_points_text(text: str, file: Path) -> dict:
-    """Columns of a ``points3D.txt`` (each line split once; the numbers converted column-wise)."""
+    """Columns of a ``points3D.txt``: each line split once, every token converted in one go, then sliced."""
     data = _data_lines(text)
     tokens = [line.split() for _, line in data]
-    lengths = np.array([len(t) for t in tokens], dtype=np.int64)
+    lengths = np.fromiter(map(len, tokens), dtype=np.int64, count=len(tokens))
     bad = (lengths < 8) | ((lengths - 8) % 2 == 1)
     if bad.any():
         i = int(np.argmax(bad))
         raise InvalidInputError(f"{where(file, data[i][0])}: expected POINT3D_ID X Y Z R G B ERROR and (IMAGE_ID, "
                                 f"POINT2D_IDX) pairs; got {len(tokens[i])} fields")
-    heads = [t[:8] for t in tokens]
-    tracks = [v for t in tokens for v in t[8:]]
     try:
-        ids = np.array([h[0] for h in heads], dtype=np.int64)
-        xyz = np.array([h[1:4] for h in heads], dtype=np.float64).reshape(-1, 3)
-        rgb = np.array([h[4:7] for h in heads], dtype=np.int64).reshape(-1, 3)
-        errors = np.array([h[7] for h in heads], dtype=np.float64)
-        track = np.array(tracks, dtype=np.int64).reshape(-1, 2)
-    except (ValueError, OverflowError):
+        values = np.array(list(itertools.chain.from_iterable(tokens)), dtype=np.float64)
+    except ValueError:
         _first_bad_point_line(file, data, tokens)
         raise  # pragma: no cover - the scan above always finds the line
-    finite = np.isfinite(xyz).all(axis=1) & ~np.isnan(errors)
-    for test, what in ((ids >= 0, "POINT3D_ID must be >= 0"), (finite, "X Y Z must be finite and ERROR a number"),
-                       (((rgb >= 0) & (rgb <= 255)).all(axis=1), "R G B must be integers in 0 … 255")):
+    first = np.cumsum(lengths) - lengths  # where each line's tokens start
+    heads = values[first[:, None] + np.arange(8)].reshape(-1, 8)
+    in_track = np.ones(len(values), dtype=bool)
+    in_track[(first[:, None] + np.arange(8)).ravel()] = False
+    track = values[in_track].reshape(-1, 2)
+    ids, xyz, rgb, errors = heads[:, 0], heads[:, 1:4], heads[:, 4:7], heads[:, 7]
+    whole = (ids == np.round(ids)) & (ids >= 0) & (ids < 2**53)
+    for test, what in ((whole, "POINT3D_ID must be an integer in 0 … 2⁵³"),
+                       (np.isfinite(xyz).all(axis=1) & ~np.isnan(errors), "X Y Z must be finite and ERROR a number"),
+                       (((rgb >= 0) & (rgb <= 255) & (rgb == np.round(rgb))).all(axis=1), "R G B must be integers in "
+                                                                                          "0 … 255")):
         if not test.all():
             i = int(np.argmin(test))
             raise InvalidInputError(f"{where(file, data[i][0])}: {what}; got {' '.join(tokens[i][:8])!r}")
     starts = np.concatenate([[0], np.cumsum((lengths - 8) // 2)]).astype(np.int64)
-    outside = ~((track >= 0) & (track < _NO_ID32)).all(axis=1)
+    outside = ~((track >= 0) & (track < _NO_ID32) & (track == np.round(track))).all(axis=1)
     if outside.any():
         i = int(np.searchsorted(starts, np.argmax(outside), side="right") - 1)
-        raise InvalidInputError(f"{where(file, data[i][0])}: IMAGE_ID and POINT2D_IDX must be in 0 … {_NO_ID32 - 1}")
-    return {"ids": ids, "xyz": xyz, "colours": rgb.astype(np.uint8), "errors": errors, "track_starts": starts,
-            "track_image_ids": track[:, 0].copy(), "track_point2d": track[:, 1].copy()}
+        raise InvalidInputError(f"{where(file, data[i][0])}: IMAGE_ID and POINT2D_IDX must be integers in 0 … "
+                                f"{_NO_ID32 - 1}")
+    return {"ids": ids.astype(np.int64), "xyz": xyz.copy(), "colours": rgb.astype(np.uint8), "errors": errors.copy(),
+            "track_starts": starts, "track_image_ids": track[:, 0].astype(np.int64),
+            "track_point2d": track[:, 1].astype(np.int64)}
 
 
 def _first_bad_point_line(file: Path, data: list[tuple[int, str]], tokens: list[list[str]]) -> None:
     for (n, _), t in zip(data, tokens):
-        try:
-            int(t[0]), [float(v) for v in t[1:4]], [int(v) for v in t[4:7]], float(t[7]), [int(v) for v in t[8:]]
-        except ValueError:
-            raise InvalidInputError(f"{where(file, n)}: POINT3D_ID, R G B and the track must be integers, X Y Z and "
-                                    f"ERROR numbers; got {' '.join(t[:8])!r} …") from None
+        bad = next((v for v in t if not _is_number(v)), None)
+        if bad is not None:
+            raise InvalidInputError(f"{where(file, n)}: every field must be a number; got {bad!r}")
 
 
-def _text_number(value: float) -> str:
-    """Shortest text that reads back as the same float (COLMAP parses it with strtod)."""
-    return repr(float(value))
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def cameras_text(cameras: dict) -> str:
@@ -212,7 +227,7 @@ def cameras_text(cameras: dict) -> str:
     for cid, model, (w, h), p in zip(cameras["ids"].tolist(), cameras["models"], cameras["sizes"].tolist(),
                                      cameras["params"].tolist()):
         values = p if model == "PINHOLE" else [p[0], p[2], p[3]]
-        lines.append(f"{cid} {model} {w} {h} " + " ".join(_text_number(v) for v in values))
+        lines.append(f"{cid} {model} {w} {h} " + " ".join(map(repr, values)))
     return "\n".join(lines) + "\n"
 
 
@@ -224,13 +239,14 @@ def images_text(images: dict) -> str:
              "#   POINTS2D[] as (X, Y, POINT3D_ID)",
              f"# Number of images: {n}, mean observations per image: {total / n if n else 0:g}"]
     starts = images["point_starts"].tolist()
-    xy = images["points2d"].tolist()
-    ids = images["point3d_ids"].tolist()
+    # every number turned into text once, then joined per image
+    xy = images["points2d"]
+    triples = [f"{x} {y} {p}" for x, y, p in zip(map(repr, xy[:, 0].tolist()), map(repr, xy[:, 1].tolist()),
+                                                   images["point3d_ids"].tolist())]
+    poses = np.concatenate([images["quaternions"], images["translations"]], axis=1).tolist()
     for i, (iid, cid, name) in enumerate(zip(images["ids"].tolist(), images["camera_ids"].tolist(), images["names"])):
-        pose = [*images["quaternions"][i].tolist(), *images["translations"][i].tolist()]
-        lines.append(f"{iid} {' '.join(_text_number(v) for v in pose)} {cid} {name}")
-        lines.append(" ".join(f"{_text_number(x)} {_text_number(y)} {p}"
-                              for (x, y), p in zip(xy[starts[i]:starts[i + 1]], ids[starts[i]:starts[i + 1]])))
+        lines.append(f"{iid} {' '.join(map(repr, poses[i]))} {cid} {name}")
+        lines.append(" ".join(triples[starts[i]:starts[i + 1]]))
     return "\n".join(lines) + "\n"
 
 
@@ -240,12 +256,13 @@ def points_text(points: dict) -> str:
     lines = ["# 3D point list with one line of data per point:",
              "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
              f"# Number of points: {n}, mean track length: {starts[-1] / n if n else 0:g}"]
-    track = np.stack([points["track_image_ids"], points["track_point2d"]], axis=1).tolist()
-    for k, (pid, xyz, rgb, err) in enumerate(zip(points["ids"].tolist(), points["xyz"].tolist(),
-                                                  points["colours"].tolist(), points["errors"].tolist())):
-        pairs = " ".join(f"{a} {b}" for a, b in track[starts[k]:starts[k + 1]])
-        lines.append(f"{pid} {' '.join(_text_number(v) for v in xyz)} {rgb[0]} {rgb[1]} {rgb[2]} "
-                     f"{_text_number(err)} {pairs}".rstrip())
+    pairs = [f"{a} {b}" for a, b in zip(points["track_image_ids"].tolist(), points["track_point2d"].tolist())]
+    xyz = points["xyz"].tolist()
+    rgb = points["colours"].tolist()
+    for k, (pid, err) in enumerate(zip(points["ids"].tolist(), map(repr, points["errors"].tolist()))):
+        x, y, z = map(repr, xyz[k])
+        r, g, b = rgb[k]
+        lines.append(f"{pid} {x} {y} {z} {r} {g} {b} {err} {' '.join(pairs[starts[k]:starts[k + 1]])}".rstrip())
     return "\n".join(lines) + "\n"
 
 
