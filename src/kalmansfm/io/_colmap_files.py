@@ -98,7 +98,8 @@ def parse_cameras_text(text: str, file: Path) -> dict:
     for n, line in _data_lines(text):
         tokens = line.split()
         if len(tokens) < 4:
-            raise InvalidInputError(f"{where(file, n)}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]; got {line.strip()!r}")
+            raise InvalidInputError(f"{where(file, n)}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]; "
+                                    f"got {line.strip()!r}")
         model = tokens[1]
         if model not in SUPPORTED_MODELS:
             raise InvalidInputError(f"{where(file, n)}: {unsupported_model(model)}")

@@ -1,4 +1,4 @@
-"""The records of a COLMAP sparse model and the pixel convention: :mod:`kalmansfm.io.colmap` reads, writes and builds them.
+"""The records of a COLMAP sparse model and its pixel convention (:mod:`kalmansfm.io.colmap` reads, writes, builds them).
 
 The records hold the files' numbers exactly as written (COLMAP's pixel convention, quaternions as
 given), so that a model reads and writes back bit for bit; :func:`to_colmap_pixels` and
@@ -163,7 +163,8 @@ class ColmapImages:
         if bad.any():
             i = int(np.argmax(bad))
             raise InvalidInputError(f"images: image {self.ids[i]} ({self.names[i]}): its pose must be finite with a "
-                                    f"nonzero quaternion; got {self.quaternions[i].tolist()}, {self.translations[i].tolist()}")
+                                    f"nonzero quaternion; got {self.quaternions[i].tolist()}, "
+                                    f"{self.translations[i].tolist()}")
 
     def rotations(self) -> np.ndarray:
         """(I, 3, 3) world-to-camera rotations R of the (normalised) quaternions."""
@@ -314,7 +315,8 @@ def model_problem(cameras: ColmapCameras, images: ColmapImages, points: ColmapPo
     (the file, when read from one).  ``point_ids``: also check that the images' ``point3d_ids`` are
     what the tracks say (the reader sets them from the tracks instead).
     """
-    for part, ids in (("cameras", cameras.ids), ("images", images.ids), ("points3D", None if points is None else points.ids)):
+    parts = (("cameras", cameras.ids), ("images", images.ids), ("points3D", None if points is None else points.ids))
+    for part, ids in parts:
         dup = None if ids is None else first_duplicate(ids)
         if dup is not None:
             return f"{names[part]}: id {dup} is given twice"
@@ -328,7 +330,8 @@ def model_problem(cameras: ColmapCameras, images: ColmapImages, points: ColmapPo
     seen = np.isin(points.track_image_ids, images.ids)
     if not seen.all():
         k = int(np.searchsorted(points.track_starts, np.argmin(seen), side="right") - 1)
-        return (f"{names['points3D']}: point {points.ids[k]}'s track names image {points.track_image_ids[np.argmin(seen)]}, "
+        return (f"{names['points3D']}: point {points.ids[k]}'s track names image "
+                f"{points.track_image_ids[np.argmin(seen)]}, "
                 f"which {names['images']} does not hold")
     row = rows_of(images.ids, points.track_image_ids)
     counts = np.diff(images.point_starts)[row]

@@ -258,7 +258,8 @@ def _check_frames(K: np.ndarray, R: np.ndarray, size: np.ndarray, names: list[st
     bad = checked.not_rotations | checked.reflections
     if bad.any():
         i = int(np.argmax(bad))
-        raise InvalidInputError(f"rotation of image {names[i]} is not a rotation (|R Rᵀ - I| = {checked.deviations[i]:.3g}, "
+        raise InvalidInputError(f"rotation of image {names[i]} is not a rotation "
+                                f"(|R Rᵀ - I| = {checked.deviations[i]:.3g}, "
                                 f"det {np.linalg.det(R[i]):.3g})")
     if size.size and (size.dtype.kind not in "iu" or (size < 1).any()):
         raise InvalidInputError(f"image sizes must be positive integers (width, height); got {size[0].tolist()} …")
@@ -272,7 +273,8 @@ def _check_frames(K: np.ndarray, R: np.ndarray, size: np.ndarray, names: list[st
 
 def _distinct_cameras(K: np.ndarray, size: np.ndarray) -> tuple[tuple, np.ndarray]:
     """One PINHOLE camera per distinct (fx, fy, cx, cy, width, height), ids from 1 in order of first use."""
-    params = np.stack([K[:, 0, 0], K[:, 1, 1], *to_colmap_pixels(K[:, :2, 2]).T], axis=1) if len(K) else np.zeros((0, 4))
+    params = np.zeros((len(K), 4))
+    params[:, 0], params[:, 1], params[:, 2:] = K[:, 0, 0], K[:, 1, 1], to_colmap_pixels(K[:, :2, 2])
     key = np.concatenate([params, size.astype(np.float64)], axis=1)
     _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     rank = np.empty(len(first), dtype=np.int64)

@@ -111,7 +111,8 @@ def intrinsics_problem(intrinsics: object) -> tuple[int, str] | None:
 
     Examples
     --------
-    >>> intrinsics_problem([[[800.0, 0.0, 320.0], [0, 800.0, 240.0], [0, 0, 1]], [[800.0, 1e6, 320.0], [0, 800.0, 240.0], [0, 0, 1]]])
+    >>> good, skewed = np.diag([800.0, 800.0, 1.0]), np.array([[800.0, 1e6, 320.0], [0, 800.0, 240.0], [0, 0, 1]])
+    >>> intrinsics_problem([good, skewed])
     (1, 'skew 1e+06 px is larger than the focal length 800 px (pixel axes under 45° apart)')
     >>> intrinsics_problem(np.diag([800.0, 800.0, 1.0])) is None
     True

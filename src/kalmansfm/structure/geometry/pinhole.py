@@ -242,8 +242,9 @@ class CameraSet:
         checked = check_rotations(R)
         if checked.not_rotations.any():
             v = int(np.argmax(checked.not_rotations))
-            raise InvalidInputError(f"rotations[{v}] is not a rotation: R Rᵀ differs from I by {checked.deviations[v]:.3g} "
-                                    f"(more than the {ROTATION_ROUNDED:g} that rounding explains)")
+            raise InvalidInputError(f"rotations[{v}] is not a rotation: R Rᵀ differs from I by "
+                                    f"{checked.deviations[v]:.3g} (more than the {ROTATION_ROUNDED:g} that rounding "
+                                    f"explains)")
         if checked.reflections.any():
             v = int(np.argmax(checked.reflections))
             raise InvalidInputError(f"rotations[{v}] is a reflection (det R = -1), not a rotation")
