@@ -73,15 +73,6 @@ def _numbers(file: Path, line: int, tokens: list[str], what: str, kind: type = f
     return values
 
 
-def _exact_numbers(file: Path, line: int, tokens: list[str], what: str) -> np.ndarray:
-    """Numbers as float64, integers among them exact: a token of 16 or more digits (an id beyond 2⁵³) is refused."""
-    values = _numbers(file, line, tokens, what) if tokens else np.zeros(0)
-    if values.size and np.abs(values).max() >= 2**53:
-        raise InvalidInputError(f"{where(file, line)}: {what}: {np.abs(values).max():.17g} is beyond the 2⁵³ "
-                                f"that ids and coordinates may reach here")
-    return values
-
-
 def _id(file: Path, line: int, token: str, what: str, limit: int) -> int:
     try:
         value = int(token)
@@ -147,11 +138,12 @@ def parse_images_text(text: str, file: Path) -> dict:
         if len(points) % 3:
             raise InvalidInputError(f"{where(file, k)}: the points of image {ids[-1]} must be X Y POINT3D_ID triples; "
                                     f"got {len(points)} numbers")
-        values = _exact_numbers(file, k, points, "X Y POINT3D_ID").reshape(-1, 3)
+        values = (_numbers(file, k, points, "X Y POINT3D_ID") if points else np.zeros(0)).reshape(-1, 3)
         xy, point_ids = values[:, :2], values[:, 2]
-        if not (np.isfinite(xy).all() and (point_ids == np.round(point_ids)).all() and (point_ids >= -1).all()):
-            raise InvalidInputError(f"{where(file, k)}: the points of image {ids[-1]} need finite X, Y and a POINT3D_ID "
-                                    f">= 0 (-1 for none)")
+        whole = (point_ids == np.round(point_ids)) & (point_ids >= -1) & (point_ids < 2**53)
+        if not whole.all():
+            raise InvalidInputError(f"{where(file, k)}: the points of image {ids[-1]} need a POINT3D_ID in 0 … 2⁵³ "
+                                    f"(-1 for none); got {point_ids[np.argmin(whole)]:.17g}")
         counts.append(len(xy))
         blocks.append((xy, point_ids.astype(np.int64)))
     return _images(ids, cameras, names, poses, counts, blocks)

@@ -3,6 +3,7 @@ covariance side-car, no empty track written, and one clear line for every bad mo
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import struct
 import warnings
@@ -10,8 +11,11 @@ import warnings
 import numpy as np
 import pytest
 from colmap_scene import make_scene
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from kalmansfm.errors import InvalidInputError
+from kalmansfm.io._colmap_records import rows_of
 from kalmansfm.io.colmap import (
     COVARIANCE_FILE,
     ColmapModel,
@@ -218,6 +222,10 @@ def truncated(tmp_path, name, keep):
     (lambda d: write_text_model(d, points="1 0 0 1 10 20 300 0.5 1 0\n"), r"line 1: R G B must be integers in 0"),
     (lambda d: write_text_model(d, images="1 1 0 0 0 0 0 4 1 a.png\n10 20\n"), r"images\.txt: line 2: the points of "
                                                                                r"image 1 must be X Y POINT3D_ID"),
+    (lambda d: write_text_model(d, images="1 1 0 0 0 0 0 4 1 a.png\n10 20 0.5\n"), r"images\.txt: line 2: the points "
+                                                                                   r"of image 1 need a POINT3D_ID"),
+    (lambda d: write_text_model(d, images="1 1 0 0 0 0 0 4 1 a.png\n10 inf 1\n"), r"images\.txt: line 2: X Y POINT3D_ID "
+                                                                                  r"must be finite"),
     (lambda d: write_text_model(d, images="1 0 0 0 0 0 0 4 1 a.png\n\n", points=""), r"image 1 \(a\.png\): its pose "
                                                                                      r"must be finite with a nonzero"),
     (lambda d: write_text_model(d, cameras="1 PINHOLE 640 480 500 500 x 240\n"), r"line 1: the parameters must be "
@@ -279,3 +287,31 @@ def test_the_builder_refuses_what_colmap_cannot_hold(change, message):
     arguments.update(change)
     with pytest.raises(InvalidInputError, match=message):
         build_colmap_model(**arguments)
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(xyz=st.lists(st.tuples(finite, finite, finite), min_size=1, max_size=5),
+       xy=st.lists(st.tuples(finite, finite), min_size=2, max_size=2), error=finite)
+def test_any_finite_numbers_survive_text_and_binary_bit_for_bit(tmp_path_factory, xyz, xy, error):
+    """Shortest round-trip text (and -0.0, subnormals, 1e308) reads back as the very same doubles."""
+    model = SCENE.model(covariances=None)
+    p = model.points
+    n = min(len(xyz), len(p.ids))
+    changed = ColmapPoints(p.ids[:n], np.array(xyz[:n]), p.colours[:n], np.full(n, error),
+                           p.track_starts[:n + 1], p.track_image_ids[:p.track_starts[n]],
+                           p.track_point2d[:p.track_starts[n]])
+    images = model.images
+    points2d = images.points2d.copy()
+    points2d[:2] = xy
+    owner = np.full(len(points2d), -1)
+    rows = images.point_starts[rows_of(images.ids, changed.track_image_ids)] + changed.track_point2d
+    owner[rows] = np.repeat(changed.ids, changed.track_lengths)
+    images = dataclasses.replace(images, points2d=points2d, point3d_ids=owner)
+    model = ColmapModel(model.cameras, images, changed)
+    for binary in (False, True):
+        folder = tmp_path_factory.mktemp("m")
+        write_colmap_model(model, folder, binary=binary)
+        assert_same_model(read_colmap_model(folder), model)
