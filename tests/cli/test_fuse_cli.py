@@ -111,7 +111,8 @@ def bad_cameras(tmp_path, text):
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda f: bad_cameras(f, "frame,p11,p12\n10,1,2\n"), r"cameras.csv: line 1: header lacks column\(s\) p13"),
+        (lambda f: bad_cameras(f, "frame,p11,p12\n10,1,2\n"), r"cameras.csv: line 1: missing column\(s\) p13, .* of the projection-matrix layout; expected the "
+         r"projection-matrix layout frame,p11,.* or the intrinsics \+ pose layout frame,fx,.*; got frame,p11,p12$"),
         (lambda f: bad_cameras(f, ",".join(MATRIX_COLUMNS) + "\n10" + ",0" * 12 + "\n11,1,0,0,0,0,1,0,0,0,0,1,0\n"),
          "cameras.csv: line 2: frame 10: not a camera"),
         (lambda f: bad_cameras(f, ",".join(MATRIX_COLUMNS) + "\n10,1,0,0,0,0,1,0,0,0,0,inf,0\n"),
@@ -122,7 +123,8 @@ def bad_cameras(tmp_path, text):
          r"tracks.csv: 1 of its 5 frame\(s\) have a camera; fusing needs >= 2"),
         (lambda f: bad_cameras(f, ",".join(MATRIX_COLUMNS) + "\n1,1,0,0,0,0,1,0,0,0,0,1,0\n2,1,0,0,0,0,1,0,0,0,0,1,1\n"),
          r"tracks.csv: 0 of its 5 frame\(s\) have a camera"),
-        (lambda f: (f / "tracks.csv").write_text("frame,track_id,x\n10,1,2\n"), r"tracks.csv: line 1: header lacks"),
+        (lambda f: (f / "tracks.csv").write_text("frame,track_id,x\n10,1,2\n"),
+         r"tracks.csv: line 1: missing column\(s\) y; expected frame,track_id,x,y; got frame,track_id,x$"),
         (lambda f: (f / "tracks.csv").unlink(), "tracks.csv: no such file"),
     ],
 )

@@ -5,7 +5,8 @@ from __future__ import annotations
 import csv
 import os
 import re
-from collections.abc import Iterable
+import stat
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -76,31 +77,144 @@ class CsvRows(NamedTuple):
     rows: list[tuple[int, list[str]]]
 
 
-def read_rows(path: str | os.PathLike[str], expected: str, *, allow_no_rows: bool = False) -> CsvRows:
+#: The most bytes a CSV reader reads: a larger file is refused before it is read (it would not fit in memory
+#: as rows of text; a tracks CSV of 10⁶ observations is about 60 MB).
+MAX_CSV_BYTES = 1 << 30
+
+
+def read_file_bytes(path: str | os.PathLike[str], kind: str, max_bytes: int) -> bytes:
+    """The bytes of a regular file, refusing what is not one before reading it, and reading at most ``max_bytes``.
+
+    A folder, a FIFO (which would block until a writer comes), a device such as ``/dev/zero`` (which
+    never ends) or a socket is refused without reading; so is a file larger than ``max_bytes`` (also one
+    that grows while it is read).  The file is opened without blocking and checked on the open handle,
+    so that nothing can be swapped in between the check and the read.
+
+    Parameters
+    ----------
+    path : the file.
+    kind : what the file should be, for the messages (``"text CSV"``, ``"COLMAP binary file"``).
+    max_bytes : the largest size accepted.
+
+    Raises
+    ------
+    InvalidInputError
+        ``FILE: no such file``, ``FILE: is a folder, not a KIND``, ``FILE: is a FIFO, not a KIND``
+        (device, socket), ``FILE: is larger than the N bytes a KIND may have here``,
+        ``FILE: not a readable KIND (reason)``.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (folder / "a.csv").write_text("x\\n1\\n")
+    >>> read_file_bytes(folder / "a.csv", "text CSV", 100)
+    b'x\\n1\\n'
+    >>> read_file_bytes(folder, "text CSV", 100)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: ...: is a folder, not a text CSV
+    """
+    file = Path(path)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        if file.is_dir():  # Windows cannot open a folder to ask
+            raise InvalidInputError(f"{where(file)}: is a folder, not a {kind}")
+        fd = os.open(file, flags)
+    except FileNotFoundError:
+        raise InvalidInputError(f"{where(file)}: no such file") from None
+    except OSError as exc:
+        raise InvalidInputError(f"{where(file)}: not a readable {kind} ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "rb") as handle:
+        mode = os.fstat(handle.fileno()).st_mode
+        if not stat.S_ISREG(mode):
+            what = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else
+                    "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else
+                    "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+            raise InvalidInputError(f"{where(file)}: is {what}, not a {kind}")
+        try:
+            data = handle.read(max_bytes + 1)
+        except OSError as exc:
+            raise InvalidInputError(f"{where(file)}: not a readable {kind} ({exc.strerror or exc})") from None
+    if len(data) > max_bytes:
+        raise InvalidInputError(f"{where(file)}: is larger than the {max_bytes} bytes a {kind} may have here")
+    return data
+
+
+def missing_columns(header: list[str], required: Sequence[str] | Mapping[str, Sequence[str]]) -> str | None:
+    """The one message for a header that lacks required columns, or None when it has them.
+
+    ``required`` is one list of columns, or alternative layouts (a description → columns mapping)
+    of which one suffices.  The message names the missing columns (of the layout the header comes
+    closest to), every accepted layout and the header that came::
+
+        missing column(s) y; expected frame,track_id,x,y; got frame,track_id,x
+
+    Examples
+    --------
+    >>> missing_columns(["x", "z"], ["x", "y"])
+    'missing column(s) y; expected x,y; got x,z'
+    >>> print(missing_columns(["fx"], {"K": ["fx", "fy"], "P": ["p11"]}))
+    missing column(s) fy of the K layout; expected the K layout fx,fy or the P layout p11; got fx
+    >>> missing_columns(["p11"], {"K": ["fx", "fy"], "P": ["p11"]}) is None
+    True
+    """
+    layouts = _layouts(required)
+    have = set(header)
+    lacking = {name: [c for c in columns if c not in have] for name, columns in layouts.items()}
+    if any(not m for m in lacking.values()):
+        return None
+    # the layout with the most columns present is the one the file was meant to be
+    closest = max(layouts, key=lambda name: (len(layouts[name]) - len(lacking[name]), -len(lacking[name])))
+    of = f" of the {closest} layout" if closest else ""
+    return f"missing column(s) {', '.join(lacking[closest])}{of}; expected {_expected(layouts)}; got {','.join(header)}"
+
+
+def _layouts(required: Sequence[str] | Mapping[str, Sequence[str]]) -> dict[str, list[str]]:
+    """Alternative layouts by description; one unnamed layout for a plain list of columns."""
+    if isinstance(required, Mapping):
+        return {name: list(columns) for name, columns in required.items()}
+    return {"": list(required)}
+
+
+def _expected(layouts: dict[str, list[str]]) -> str:
+    """``a,b`` or ``the X layout a,b or the Y layout c,d``."""
+    return " or ".join(f"the {name} layout {','.join(columns)}" if name else ",".join(columns)
+                       for name, columns in layouts.items())
+
+
+def read_rows(path: str | os.PathLike[str], expected: str | None = None, *,
+              required: Sequence[str] | Mapping[str, Sequence[str]] = (), allow_no_rows: bool = False,
+              max_bytes: int = MAX_CSV_BYTES) -> CsvRows:
     """Read the header and the rows of a CSV file with the rules every reader of ``io`` shares.
 
     The rules (``docs/formats.md``):
 
+    * a regular file of at most ``max_bytes`` (a folder, FIFO or device is refused unread);
     * UTF-8 text, with or without a byte-order mark; a file with NUL bytes is not text;
     * a line whose first non-blank character is ``#`` is a comment;
     * a blank line, or one with nothing but separators and spaces, is skipped;
-    * the first other line is the header, its names stripped of surrounding spaces;
+    * the first other line is the header, its names stripped of surrounding spaces, holding the
+      ``required`` columns;
     * every row has as many fields as the header.
 
     Parameters
     ----------
     path : the file.
     expected : the header the caller expects, for the message of an empty file
-        (``"FILE: empty file; expected a header " + expected``).
+        (``"FILE: empty file; expected a header " + expected``); by default the ``required`` columns.
+    required : the columns the header must hold, or alternative layouts (description → columns) of
+        which one suffices; the one message for a header without them is :func:`missing_columns`'.
     allow_no_rows : a file with a header and no rows is valid (else it is refused).
+    max_bytes : the largest file read.
 
     Raises
     ------
     InvalidInputError
         Naming the file, and the 1-based line where there is one (:func:`where`): ``FILE: no such file``,
-        ``FILE: not a readable text CSV (…)``, ``FILE: empty file; expected a header …``,
-        ``FILE: line N: no rows after the header`` (N the header's line), ``FILE: line N: K fields,
-        the header has M``.
+        ``FILE: is a folder, not a text CSV`` (FIFO, device), ``FILE: not a readable text CSV (…)``,
+        ``FILE: empty file; expected a header …``, ``FILE: line N: missing column(s) …`` (N the header's
+        line), ``FILE: line N: no rows after the header``, ``FILE: line N: K fields, the header has M``.
 
     Examples
     --------
@@ -109,14 +223,13 @@ def read_rows(path: str | os.PathLike[str], expected: str, *, allow_no_rows: boo
     >>> _ = f.write_bytes("\\ufeff# made by hand\\n a , b\\n\\n1,2\\n,\\n3,4\\n".encode())
     >>> read_rows(f, "a,b")
     CsvRows(header=['a', 'b'], header_line=2, rows=[(4, ['1', '2']), (6, ['3', '4'])])
+    >>> read_rows(f, required=["a", "c"])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: ...t.csv: line 2: missing column(s) c; expected a,c; got a,b
     """
     file = Path(path)
-    try:
-        data = file.read_bytes()
-    except FileNotFoundError:
-        raise InvalidInputError(f"{where(file)}: no such file") from None
-    except OSError as exc:
-        raise InvalidInputError(f"{where(file)}: not a readable text CSV ({exc.strerror or exc})") from None
+    data = read_file_bytes(file, "text CSV", max_bytes)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -137,9 +250,14 @@ def read_rows(path: str | os.PathLike[str], expected: str, *, allow_no_rows: boo
     except csv.Error as exc:
         raise InvalidInputError(f"{where(file, kept[start][0])}: not a readable CSV row ({exc})") from None
     if not records:
+        if expected is None:
+            expected = _expected(_layouts(required))
         raise InvalidInputError(f"{where(file)}: empty file; expected a header {expected}")
     header_line, header = records[0]
     header = [name.strip() for name in header]
+    missing = missing_columns(header, required) if required else None
+    if missing:
+        raise InvalidInputError(f"{where(file, header_line)}: {missing}")
     rows = records[1:]
     for n, fields in rows:
         if len(fields) != len(header):

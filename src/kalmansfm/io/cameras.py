@@ -1,6 +1,6 @@
-"""Known cameras in and out: the cameras CSV, and tracks matched to its frames.
+"""Known cameras in and out: the cameras CSV, COLMAP models as known cameras, and tracks matched to their frames.
 
-Two layouts are read, told apart by the header:
+Two CSV layouts are read, told apart by the header:
 
 * ``frame,p11,p12,p13,p14,p21,...,p34`` — each frame's 3 × 4 projection matrix,
   row-major, mapping homogeneous world points to pixels (x = column, y = row);
@@ -18,35 +18,58 @@ as it is.  Writers: :func:`cameras_csv` (projection-matrix layout) and
 :func:`pose_cameras_csv` (intrinsics + pose, optionally with the two standard deviations);
 numbers are the shortest text that reads back to the same float.
 
-Other columns are ignored; comments, blank lines and the rest of the rules every CSV reader
-shares are in docs/formats.md (:func:`._csv.read_rows`).  Every problem
-raises :class:`~kalmansfm.InvalidInputError` naming the file and the 1-based line:
-missing columns, a frame given twice, a non-number or non-finite entry, a matrix
-that is not a camera (singular left 3 × 3 block, fx or fy <= 0, R not a rotation).
+A COLMAP sparse model (its folder, a folder holding ``sparse/0``, or one of its files; text or
+binary, :mod:`kalmansfm.io.colmap`) is read as known cameras too: each registered image is a
+camera, matched to a frame by its name when the caller gives the frames' names, else by order
+(the images' names in natural order are frames 0, 1, …); :class:`KnownCameras` says which.
+
+What is refused, with one line naming the file and the line: missing columns (the message names
+both layouts), a frame given twice, a non-number or non-finite entry, a matrix that is not a
+camera (singular left 3 × 3 block, K that is not a camera's:
+:func:`~kalmansfm.structure.geometry.camera_checks.intrinsics_problem`), R that is not a rotation
+(a reflection, or farther from orthonormal than rounding explains).  R orthonormal only to
+rounding (up to 1e-3, e.g. printed to six digits) is replaced by the nearest rotation, with a
+warning saying how far it was off.  Projection-matrix entries are not pixels and have no bound
+beyond being finite (georeferenced cameras have p14 ≈ 1e8).  Comments, blank lines and the rest of
+the rules every CSV reader shares are in docs/formats.md (:func:`._csv.read_rows`).
 """
 
 from __future__ import annotations
 
 import os
+import re
+import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError, NotEnoughDataError
+from ..errors import InvalidInputError, KalmanSfmWarning, NotEnoughDataError
+from ..structure.geometry.camera_checks import (
+    ROTATION_ROUNDED,
+    check_rotations,
+    intrinsics_problem,
+    projection_scale_problem,
+)
 from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices
 from ._csv import csv_text, number, read_rows, where
-from .tracks import _floats, _indices
+from .colmap import MODEL_PARTS, locate_colmap_model, read_colmap_model
+from .tracks import _indices
 
 __all__ = [
     "MATRIX_COLUMNS",
     "POSE_COLUMNS",
     "POSE_STD_COLUMNS",
     "CameraObservations",
+    "KnownCameras",
     "cameras_csv",
+    "is_colmap_path",
     "match_cameras",
+    "match_image_names",
     "pose_cameras_csv",
     "read_cameras",
+    "read_known_cameras",
 ]
 
 #: Header of the projection-matrix layout.
@@ -56,19 +79,100 @@ POSE_COLUMNS = ("frame", "fx", "fy", "cx", "cy", "skew") + tuple(f"r{i}{j}" for 
                                                                  for j in range(1, 4)) + ("t1", "t2", "t3")
 #: The optional columns after :data:`POSE_COLUMNS` in the cameras.csv of a perspective reconstruction.
 POSE_STD_COLUMNS = ("rotation_std_deg", "centre_std")
+#: The layouts a cameras CSV may have, by the name its messages use.
+CAMERA_LAYOUTS = {"projection-matrix": MATRIX_COLUMNS, "intrinsics + pose": POSE_COLUMNS}
+#: The largest cameras CSV read (a row is under 500 bytes: this is 10⁵ cameras and more).
+MAX_CAMERAS_BYTES = 64 << 20
 
-# Same limits as CameraSet (a left block this close to singular is not a camera).
+# Same limit as CameraSet (a left block this close to singular is not a camera).
 _SINGULAR_RATIO = 1e-12
-_ROTATION_TOLERANCE = 1e-6
 
 
-def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
-    """Read a cameras CSV (either layout, see the module notes).
+@dataclass(frozen=True)
+class KnownCameras:
+    """Cameras read from a file, and how their frames were found.
+
+    Attributes
+    ----------
+    cameras : CameraSet — one camera per frame.
+    source_format : str — ``"projection-matrix CSV"``, ``"intrinsics + pose CSV"``, ``"COLMAP text"``
+        or ``"COLMAP binary"``.
+    matched_by : str — how cameras got their frame: ``"frame column"`` (CSV), ``"name"`` (a COLMAP
+        image name equal to a frame's name) or ``"order"`` (COLMAP images in natural name order are
+        frames 0, 1, …).
+    image_names : tuple of str — the COLMAP image name of each camera (empty for a CSV).
+    warnings : tuple of str — what was accepted but deserves attention (rotations repaired).
+    """
+
+    cameras: CameraSet
+    source_format: str
+    matched_by: str
+    image_names: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+
+def is_colmap_path(path: str | os.PathLike[str]) -> bool:
+    """True when ``path`` names a COLMAP model rather than a CSV: a folder, or a ``.bin`` / model ``.txt`` file.
+
+    Examples
+    --------
+    >>> is_colmap_path("sparse/0/cameras.txt"), is_colmap_path("run/cameras.csv")
+    (True, False)
+    """
+    given = Path(path)
+    return given.is_dir() or given.suffix == ".bin" or (given.suffix == ".txt" and given.stem in MODEL_PARTS)
+
+
+def read_known_cameras(path: str | os.PathLike[str],
+                       frame_names: Sequence[str] | Mapping[int, str] | None = None) -> KnownCameras:
+    """Read known cameras from a cameras CSV (either layout) or a COLMAP model (see the module notes).
+
+    Parameters
+    ----------
+    path : the CSV, or the COLMAP model (folder or one of its files).
+    frame_names : optional, COLMAP only — the name of each frame (a sequence: frame i is
+        ``frame_names[i]``; or a frame → name mapping), to match images by name: equal names, or
+        equal file names when the image's name has folders.  Without it, images are frames 0, 1, …
+        in the natural order of their names.
+
+    Returns
+    -------
+    KnownCameras
+
+    Raises
+    ------
+    InvalidInputError
+        One line naming the file (see the module notes); for a COLMAP model also an unsupported camera
+        model, an image whose name matches no frame, two images matching one frame.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "cameras.csv"
+    >>> header = "frame,fx,fy,cx,cy,skew,r11,r12,r13,r21,r22,r23,r31,r32,r33,t1,t2,t3"
+    >>> _ = f.write_text(header + "\\n4,500,500,320,240,0,1,0,0,0,1,0,0,0,0.9999995,0,0,5\\n")
+    >>> known = read_known_cameras(f)
+    >>> known.source_format, known.cameras.frames.tolist()
+    ('intrinsics + pose CSV', [4])
+    >>> known.warnings[0]  # doctest: +ELLIPSIS
+    '...cameras.csv: 1 of 1 rotation(s) orthonormal only to 1e-06 ...; replaced by the nearest rotation(s) (SVD)'
+    """
+    if is_colmap_path(path):
+        return _colmap_cameras(path, frame_names)
+    return _csv_cameras(Path(path))
+
+
+def read_cameras(path: str | os.PathLike[str],
+                 frame_names: Sequence[str] | Mapping[int, str] | None = None) -> CameraSet:
+    """Read known cameras (a cameras CSV or a COLMAP model): :func:`read_known_cameras`' cameras.
+
+    Its warnings (rotations repaired) are issued as :class:`~kalmansfm.KalmanSfmWarning`; call
+    :func:`read_known_cameras` to get them, and how frames were matched, as data.
 
     Returns
     -------
     CameraSet
-        One camera per row, in the order of the file.
+        One camera per row (CSV, in the order of the file) or per registered image (COLMAP).
 
     Examples
     --------
@@ -80,53 +184,163 @@ def read_cameras(path: str | os.PathLike[str]) -> CameraSet:
     >>> cams.frames.tolist(), cams.matrices[0, 0].tolist()
     ([4], [500.0, 0.0, 320.0, 1600.0])
     """
-    file = Path(path)
-    header, header_line, rows = read_rows(file, f"{','.join(MATRIX_COLUMNS)} or {','.join(POSE_COLUMNS)}")
+    known = read_known_cameras(path, frame_names)
+    for message in known.warnings:
+        warnings.warn(message, KalmanSfmWarning, stacklevel=2)
+    return known.cameras
+
+
+def _column(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np.ndarray:
+    """One column of finite numbers (no bound: projection-matrix entries and translations are not pixels)."""
+    try:
+        out = np.array(values.tolist(), dtype=np.float64)
+    except ValueError:
+        out = None
+    if out is None or not np.isfinite(out).all():
+        for i, text in enumerate(values.tolist()):
+            try:
+                value = float(text)
+            except ValueError:
+                raise InvalidInputError(f"{where(file, lines[i])}: {name} must be a number; got {text!r}") from None
+            if not np.isfinite(value):
+                raise InvalidInputError(f"{where(file, lines[i])}: {name} must be finite; got {text.strip()!r}")
+    return out  # type: ignore[return-value]
+
+
+def _csv_cameras(file: Path) -> KnownCameras:
+    header, _, rows = read_rows(file, required=CAMERA_LAYOUTS, max_bytes=MAX_CAMERAS_BYTES)
     column = {name: i for i, name in enumerate(header)}
-    if all(c in column for c in MATRIX_COLUMNS):
-        layout = MATRIX_COLUMNS
-    elif all(c in column for c in POSE_COLUMNS):
-        layout = POSE_COLUMNS
-    else:
-        missing_p = [c for c in MATRIX_COLUMNS if c not in column]
-        missing_k = [c for c in POSE_COLUMNS if c not in column]
-        closer, missing = ("projection-matrix", missing_p) if len(missing_p) <= len(missing_k) else \
-            ("intrinsics + pose", missing_k)
-        raise InvalidInputError(f"{where(file, header_line)}: header lacks column(s) {', '.join(missing)} "
-                                f"of the {closer} layout; got {','.join(header)}")
+    layout = MATRIX_COLUMNS if all(c in column for c in MATRIX_COLUMNS) else POSE_COLUMNS
     table = np.array([row for _, row in rows], dtype=object)
     lines = np.array([n for n, _ in rows])
     frames = _indices(file, table[:, column["frame"]], lines, "frame")
-    values = np.stack([_floats(file, table[:, column[c]], lines, c) for c in layout[1:]], axis=1)
+    values = np.stack([_column(file, table[:, column[c]], lines, c) for c in layout[1:]], axis=1)
     _, first, counts = np.unique(frames, return_index=True, return_counts=True)
     if np.any(counts > 1):
         dup = frames[first[counts > 1][0]]
         at = lines[frames == dup]
         raise InvalidInputError(f"{where(file, at[0], at[1])}: frame {dup} has two cameras")
+    notes: list[str] = []
     if layout is MATRIX_COLUMNS:
         P = values.reshape(-1, 3, 4)
+        source = "projection-matrix CSV"
     else:
         fx, fy, cx, cy, skew = values[:, :5].T
-        bad = ~((fx > 0) & (fy > 0))
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise InvalidInputError(f"{where(file, lines[i])}: fx and fy must be > 0 (pixels); got {fx[i]}, {fy[i]}")
         K = intrinsic_matrices(fx, fy, cx, cy, skew)
-        R = values[:, 5:14].reshape(-1, 3, 3)
-        off = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
-        bad = ~(off <= _ROTATION_TOLERANCE)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise InvalidInputError(f"{where(file, lines[i])}: r11..r33 is not a rotation (R Rᵀ differs from I "
-                                    f"by {off[i]:.3g})")
-        P = K @ np.concatenate([R, values[:, 14:17, None]], axis=2)
-    sv = np.linalg.svd(P[:, :, :3], compute_uv=False)
-    singular = ~(sv[:, -1] > _SINGULAR_RATIO * sv[:, 0])
+        problem = intrinsics_problem(K)
+        if problem is not None:
+            raise InvalidInputError(f"{where(file, lines[problem[0]])}: {problem[1]}")
+        checked = check_rotations(values[:, 5:14])
+        for bad, why in ((checked.not_rotations, lambda i: f"R Rᵀ differs from I by {checked.deviations[i]:.3g}, more "
+                                                           f"than the {ROTATION_ROUNDED:g} that rounding explains"),
+                         (checked.reflections, lambda i: "det R = -1: a reflection")):
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InvalidInputError(f"{where(file, lines[i])}: r11..r33 is not a rotation ({why(i)})")
+        if checked.warning() is not None:
+            notes.append(f"{where(file)}: {checked.warning()}")
+        with np.errstate(all="ignore"):
+            P = K @ np.concatenate([checked.rotations, values[:, 14:17, None]], axis=2)
+        source = "intrinsics + pose CSV"
+    _check_matrices(P, [where(file, n) for n in lines], frames)
+    return KnownCameras(CameraSet(P, frames), source, "frame column", (), tuple(notes))
+
+
+def _check_matrices(P: np.ndarray, places: list[str], frames: np.ndarray) -> None:
+    """Finite (no overflow of K [R | t]) with an invertible left 3 × 3 block: what makes P a camera.
+
+    ``places`` says where each camera comes from (``FILE: line N``), for the message.
+    """
+    with np.errstate(all="ignore"):
+        finite = np.isfinite(P).all(axis=(1, 2))
+        sv = np.linalg.svd(np.where(finite[:, None, None], P, 0.0)[:, :, :3], compute_uv=False)
+        singular = ~(sv[:, -1] > _SINGULAR_RATIO * sv[:, 0])
+    if not finite.all():
+        i = int(np.argmin(finite))
+        raise InvalidInputError(f"{places[i]}: frame {frames[i]}: its projection matrix overflows "
+                                f"(numbers near the floating-point limit)")
+    scale = projection_scale_problem(P)
+    if scale is not None:
+        raise InvalidInputError(f"{places[scale[0]]}: frame {frames[scale[0]]}: its projection matrix {scale[1]}")
     if singular.any():
         i = int(np.argmax(singular))
-        raise InvalidInputError(f"{where(file, lines[i])}: frame {frames[i]}: not a camera, the left 3x3 block of "
+        raise InvalidInputError(f"{places[i]}: frame {frames[i]}: not a camera, the left 3x3 block of "
                                 f"its projection matrix is not invertible")
-    return CameraSet(P, frames)
+
+
+def _natural_key(name: str) -> list[tuple[int, object]]:
+    return [(0, int(run)) if run.isdigit() else (1, run.lower()) for run in re.findall(r"\d+|\D+", name)]
+
+
+def match_image_names(names: Sequence[str], frame_names: Sequence[str] | Mapping[int, str] | None,
+                      source: str) -> tuple[np.ndarray, str]:
+    """The frame of each image name: by name when frame names are given, else by natural order.
+
+    Parameters
+    ----------
+    names : the images' names (COLMAP ``NAME``, possibly with folders).
+    frame_names : the name of each frame (sequence: frame i; or frame → name), or None.
+    source : how the images are named in messages (their file).
+
+    Returns
+    -------
+    frames : (I,) int64 — the frame of each image.
+    rule : ``"name"`` or ``"order"``.
+
+    Examples
+    --------
+    >>> match_image_names(["img10.png", "img9.png"], None, "images.txt")
+    (array([1, 0]), 'order')
+    >>> match_image_names(["images/b.png", "a.png"], ["a.png", "b.png"], "images.txt")
+    (array([1, 0]), 'name')
+    """
+    if frame_names is None:
+        order = sorted(range(len(names)), key=lambda i: (_natural_key(names[i]), i))
+        frames = np.empty(len(names), dtype=np.int64)
+        frames[order] = np.arange(len(names))
+        return frames, "order"
+    by_frame = dict(frame_names.items()) if isinstance(frame_names, Mapping) else dict(enumerate(frame_names))
+    exact = {str(name): int(f) for f, name in by_frame.items()}
+    base: dict[str, list[int]] = {}
+    for f, name in by_frame.items():
+        base.setdefault(Path(str(name)).name, []).append(int(f))
+    frames = np.empty(len(names), dtype=np.int64)
+    for i, name in enumerate(names):
+        if name in exact:
+            frames[i] = exact[name]
+        elif len(base.get(Path(name).name, [])) == 1:
+            frames[i] = base[Path(name).name][0]
+        else:
+            shown = ", ".join(list(map(str, by_frame.values()))[:4]) + (", …" if len(by_frame) > 4 else "")
+            raise InvalidInputError(f"{source}: image {name!r} matches no frame name (frames: {shown})")
+    dup = np.unique(frames, return_counts=True)
+    if (dup[1] > 1).any():
+        frame = int(dup[0][dup[1] > 1][0])
+        both = [names[i] for i in np.flatnonzero(frames == frame)[:2]]
+        raise InvalidInputError(f"{source}: images {both[0]!r} and {both[1]!r} both match frame {frame}")
+    return frames, "name"
+
+
+def _colmap_cameras(path: str | os.PathLike[str], frame_names: Sequence[str] | Mapping[int, str] | None
+                    ) -> KnownCameras:
+    folder, ext = locate_colmap_model(path, MODEL_PARTS[:2])
+    file = folder / f"images{ext}"
+    model = read_colmap_model(file, points=False)
+    images = model.images
+    if not len(images.ids):
+        raise NotEnoughDataError(f"{where(file)}: the COLMAP model has no registered image")
+    K = model.intrinsics()
+    problem = intrinsics_problem(K)
+    if problem is not None:
+        i = problem[0]
+        raise InvalidInputError(f"{where(folder / f'cameras{ext}')}: camera {images.camera_ids[i]} (of image "
+                                f"{images.names[i]!r}): {problem[1]}")
+    frames, rule = match_image_names(images.names, frame_names, where(file))
+    with np.errstate(all="ignore"):
+        P = K @ np.concatenate([images.rotations(), images.translations[:, :, None]], axis=2)
+    _check_matrices(P, [f"{where(file)}: image {name!r}" for name in images.names], frames)
+    source = "COLMAP binary" if ext == ".bin" else "COLMAP text"
+    return KnownCameras(CameraSet(P, frames), source, rule, images.names, ())
 
 
 def cameras_csv(cameras: CameraSet) -> str:

@@ -133,11 +133,7 @@ def _read_table(path: Path, required: list[str], *, allow_no_rows: bool = False)
 
     Checks the required columns.
     """
-    header, header_line, rows = read_rows(path, f"with {', '.join(required)}", allow_no_rows=allow_no_rows)
-    missing = [c for c in required if c not in header]
-    if missing:
-        raise InvalidInputError(f"{where(path, header_line)}: missing column(s) {', '.join(missing)}; "
-                                f"header is {','.join(header)}")
+    header, _, rows = read_rows(path, required=required, allow_no_rows=allow_no_rows)
     values = []
     for line_number, row in rows:
         try:

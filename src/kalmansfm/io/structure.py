@@ -246,13 +246,7 @@ def _read_columns(
     hold a label of the status enum given (read as its code).
     """
     words = words or {}
-    header, header_line, rows = read_rows(path, f"with columns {','.join(columns)}", allow_no_rows=True)
-    missing = [c for c in columns if c not in header]
-    if missing:
-        raise InvalidInputError(
-            f"{where(path, header_line)}: missing column(s) {', '.join(missing)}; expected {','.join(columns)}, "
-            f"got header {','.join(header)}"
-        )
+    header, _, rows = read_rows(path, required=columns, allow_no_rows=True)
     index = {name: i for i, name in enumerate(header)}
     wanted = [*columns, *(c for c in optional if c in index)]
     values: dict[str, list[float]] = {c: [] for c in wanted}

@@ -204,10 +204,7 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
     Without a ``std_x,std_y`` pair the tracks have no covariances; without ``vx,vy`` no states.
     """
     file = Path(path)
-    header, header_line, rows = read_rows(file, f"with columns {','.join(_REQUIRED)}")
-    missing = [c for c in _REQUIRED if c not in header]
-    if missing:
-        raise InvalidInputError(f"{where(file, header_line)}: header lacks column(s) {', '.join(missing)}; got {','.join(header)}")
+    header, _, rows = read_rows(file, required=_REQUIRED)
     column = {name: i for i, name in enumerate(header)}
     lines = np.array([n for n, _ in rows])
     table = np.array([row for _, row in rows], dtype=object)
@@ -427,10 +424,7 @@ def read_points_csv(path: str | os.PathLike[str], *, with_lines: bool = False) -
            [117.,  89.]]), array([7, 8]))
     """
     path = Path(path)
-    header, header_line, rows = read_rows(path, "with columns x,y (and optionally track_id)")
-    missing = [c for c in ("x", "y") if c not in header]
-    if missing:
-        raise InvalidInputError(f"{where(path, header_line)}: missing column(s) {', '.join(missing)}; got {','.join(header)}")
+    header, _, rows = read_rows(path, "with columns x,y (and optionally track_id)", required=("x", "y"))
     column = {name: i for i, name in enumerate(header)}
     has_ids = "track_id" in column
     points = np.empty((len(rows), 2))

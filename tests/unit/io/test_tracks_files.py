@@ -62,7 +62,7 @@ def test_npz_uses_status_1_and_sorts_track_ids(tmp_path):
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("frame,track_id,x\n0,1,2\n", "line 1: header lacks column\\(s\\) y"),
+        ("frame,track_id,x\n0,1,2\n", "line 1: missing column\\(s\\) y; expected frame,track_id,x,y; got frame,track_id,x"),
         ("frame,track_id,x,y\n0,1,2,3\n0,2,abc,3\n", "line 3: x must be a number; got 'abc'"),
         ("frame,track_id,x,y\n0,1,2,3\n0,2,nan,3\n", "line 3: x must be finite"),
         ("frame,track_id,x,y\n0,1,2,3\n0,2,inf,3\n", "line 3: x must be finite"),

@@ -59,7 +59,7 @@ def test_points_csv(tmp_path):
     with pytest.raises(InvalidInputError, match=r"p\.csv: line 3: x and y must be numbers"):
         read_points_csv(p)
     p.write_text("u,v\n1,2\n")
-    with pytest.raises(InvalidInputError, match=r"p\.csv: line 1: missing column\(s\) x, y; got u,v$"):
+    with pytest.raises(InvalidInputError, match=r"p\.csv: line 1: missing column\(s\) x, y; expected x,y; got u,v$"):
         read_points_csv(p)
     p.write_text("x,y,track_id\n1,2,4\n3,4,4\n")
     with pytest.raises(InvalidInputError, match=r"p\.csv: line 3: track_id 4 repeats line 2$"):

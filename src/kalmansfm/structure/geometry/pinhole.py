@@ -36,13 +36,15 @@ array([[ 0.2, -0.1,  1. ]])
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from ...errors import InvalidInputError
+from ...errors import InvalidInputError, KalmanSfmWarning
 from ..._validation import as_float_array, check_finite, check_positive
 from ..points import PointStatus
+from .camera_checks import ROTATION_ROUNDED, check_rotations, intrinsics_problem, projection_scale_problem
 
 __all__ = [
     "CameraPose",
@@ -174,8 +176,12 @@ class CameraSet:
         if bad.any():
             v = int(np.flatnonzero(bad)[0])
             raise InvalidInputError(f"camera matrix of frame {frames[v]} must be finite; got {P[v].tolist()}")
-        sv = np.linalg.svd(P[:, :, :3], compute_uv=False)
-        singular = ~(sv[:, -1] > _SINGULAR_RATIO * sv[:, 0])
+        scale = projection_scale_problem(P)
+        if scale is not None:
+            raise InvalidInputError(f"camera matrix of frame {frames[scale[0]]} {scale[1]}")
+        with np.errstate(all="ignore"):
+            sv = np.linalg.svd(P[:, :, :3], compute_uv=False)
+            singular = ~(np.isfinite(sv).all(axis=1) & (sv[:, -1] > _SINGULAR_RATIO * sv[:, 0]))
         if singular.any():
             v = int(np.flatnonzero(singular)[0])
             raise InvalidInputError(
@@ -199,8 +205,11 @@ class CameraSet:
 
         Parameters
         ----------
-        intrinsics : (3, 3) or (V, 3, 3) — K, invertible.
-        rotations : (V, 3, 3) — orthonormal (a reflection, det -1, is allowed).
+        intrinsics : (3, 3) or (V, 3, 3) — K (:func:`.camera_checks.intrinsics_problem` says what is refused).
+        rotations : (V, 3, 3) — rotations.  Matrices orthonormal only to rounding (|R Rᵀ - I| up to
+            1e-3, e.g. printed to six digits) are replaced by the nearest rotation with a
+            :class:`~kalmansfm.KalmanSfmWarning` saying how far they were off; a reflection
+            (det R = -1) or a matrix farther from orthonormal is refused.
         translations : (V, 3).
         frames : (V,) int, optional — default 0..V-1.
 
@@ -227,11 +236,23 @@ class CameraSet:
             raise InvalidInputError(f"intrinsics must have shape (3, 3) or ({V}, 3, 3); got {K.shape}")
         for name, a in (("intrinsics", K), ("rotations", R), ("translations", t)):
             check_finite(name, a)
-        off = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
-        if np.any(off > 1e-6):
-            v = int(np.argmax(off))
-            raise InvalidInputError(f"rotations[{v}] must be orthonormal (R Rᵀ = I); off by {off[v]:.3g}")
-        P = np.einsum("vij,vjk->vik", K, np.concatenate([R, t[:, :, None]], axis=2))
+        problem = intrinsics_problem(K)
+        if problem is not None:
+            raise InvalidInputError(f"intrinsics[{problem[0]}]: {problem[1]}")
+        checked = check_rotations(R)
+        if checked.not_rotations.any():
+            v = int(np.argmax(checked.not_rotations))
+            raise InvalidInputError(f"rotations[{v}] is not a rotation: R Rᵀ differs from I by "
+                                    f"{checked.deviations[v]:.3g} (more than the {ROTATION_ROUNDED:g} that rounding "
+                                    f"explains)")
+        if checked.reflections.any():
+            v = int(np.argmax(checked.reflections))
+            raise InvalidInputError(f"rotations[{v}] is a reflection (det R = -1), not a rotation")
+        if checked.warning() is not None:
+            warnings.warn(f"rotations: {checked.warning()}", KalmanSfmWarning, stacklevel=2)
+        R = checked.rotations
+        with np.errstate(all="ignore"):
+            P = np.einsum("vij,vjk->vik", K, np.concatenate([R, t[:, :, None]], axis=2))
         return cls(P, np.arange(V) if frames is None else np.asarray(frames))
 
     def __len__(self) -> int:
