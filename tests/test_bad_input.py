@@ -92,7 +92,7 @@ CASES = [
     ("demo", "--out {d}/good/demo --input {d}/good", "output folder {d}/good/demo lies inside the input {d}/good"),
     # --- reconstruct -------------------------------------------------------------------------
     ("reconstruct", "{d}/missing.csv --out {out}", "missing.csv: no such file"),
-    ("reconstruct", "{d}/empty --out {out}", "empty: no such file"),
+    ("reconstruct", "{d}/empty --out {out}", "empty: a folder without tracks.npz"),
     ("reconstruct", "{d}/tracks_no_y.csv --out {out}", "tracks_no_y.csv: line 1: missing column(s) y; expected frame,track_id,x,y"),
     ("reconstruct", "{d}/tracks_nan.csv --out {out}", "tracks_nan.csv: line 3: y must be finite; got 'nan'"),
     ("reconstruct", "{d}/tracks_inf.csv --out {out}", "tracks_inf.csv: line 3: x must be finite; got 'inf'"),

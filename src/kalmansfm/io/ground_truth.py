@@ -187,7 +187,7 @@ def read_ground_truth(directory: str | os.PathLike[str]) -> GroundTruth:
     tracks = read_ground_truth_tracks(folder / TRACKS_FILE)
     points_3d = rotation_rows = translations = scales = None
     points_path = folder / POINTS_FILE
-    if points_path.is_file():
+    if points_path.exists():  # present: read (a folder or FIFO in its place is refused by the reader)
         table, lines = _read_table(points_path, ["track_id", "X", "Y", "Z"], allow_no_rows=True)
         ids = _as_index(table["track_id"], points_path, "track_id", lines)
         points_3d = np.full((len(tracks.track_ids), 3), np.nan)
@@ -198,7 +198,7 @@ def read_ground_truth(directory: str | os.PathLike[str]) -> GroundTruth:
             raise InvalidInputError(f"{where(points_path, lines[k])}: track_id {ids[k]} is not in {TRACKS_FILE}")
         points_3d[slot] = np.column_stack([table["X"], table["Y"], table["Z"]])
     motion_path = folder / MOTION_FILE
-    if motion_path.is_file():
+    if motion_path.exists():
         table, lines = _read_table(motion_path, MOTION_COLUMNS, allow_no_rows=True)
         frames = _as_index(table["frame"], motion_path, "frame", lines)
         n_frames = tracks.positions.shape[0]

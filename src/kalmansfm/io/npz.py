@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 import zipfile
 from pathlib import Path
 
@@ -32,8 +33,20 @@ def load_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     [0, 1, 2]
     """
     file = Path(path)
+    if file.is_dir():
+        raise InvalidInputError(f"{where(file)}: is a folder, not an NPZ file")
     try:
-        with np.load(file, allow_pickle=False) as data:
-            return {name: data[name] for name in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise InvalidInputError(f"{where(file)}: not a readable NPZ file ({exc or type(exc).__name__})") from None
+        # opened without blocking and checked on the handle: a FIFO or a device is refused unread
+        fd = os.open(file, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+    except FileNotFoundError:
+        raise InvalidInputError(f"{where(file)}: no such file") from None
+    except OSError as exc:
+        raise InvalidInputError(f"{where(file)}: not a readable NPZ file ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "rb") as handle:
+        if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+            raise InvalidInputError(f"{where(file)}: is not a regular file (a FIFO or a device), not an NPZ file")
+        try:
+            with np.load(handle, allow_pickle=False) as data:
+                return {name: data[name] for name in data.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise InvalidInputError(f"{where(file)}: not a readable NPZ file ({exc or type(exc).__name__})") from None

@@ -185,9 +185,9 @@ def read_tracks(path: str | os.PathLike[str]) -> Tracks:
     array([nan, nan])
     """
     file = Path(path)
-    if not file.is_file():
+    if not file.exists():
         raise InvalidInputError(f"{where(file)}: no such file")
-    if file.suffix.lower() != ".npz":
+    if file.suffix.lower() != ".npz":  # the CSV reader refuses a folder, a FIFO or a device unread
         return read_tracks_csv(file)
     tracks = read_tracks_npz(file)
     order = np.argsort(tracks.track_ids, kind="stable")

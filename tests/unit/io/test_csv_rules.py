@@ -237,9 +237,6 @@ def test_a_missing_column_gets_the_one_message_of_every_reader(tmp_path, name):
 @pytest.mark.parametrize("kind", ["folder", "FIFO"])
 @pytest.mark.parametrize("name", list(CASES))
 def test_what_is_not_a_regular_file_is_refused_unread(request, tmp_path, name, kind):
-    if name.startswith("tracks.csv") or CASES[name].optional:  # strict: passes once they let read_rows say it
-        request.applymarker(pytest.mark.xfail(strict=True, reason="read_tracks and read_ground_truth test is_file() "
-                                                                   "first: 'no such file', or the file is skipped"))
     path = tmp_path / "folder" / name.split(" ")[0]
     path.parent.mkdir(parents=True)
     path.mkdir() if kind == "folder" else os.mkfifo(path)  # a FIFO opened for reading would block the test
