@@ -47,7 +47,7 @@ def test_fuse_writes_the_run_folder_and_its_report(scene_files, capsys):
     assert "fused: 60" in printed and "pixel noise: 0.4" in printed and "estimated" in printed
     run = folder / "run"
     assert sorted(p.name for p in run.iterdir()) == [
-        "cameras.csv", "fusion.png", "history.csv", "rejected.csv", "structure.csv", "structure.ply", "summary.json"]
+        "cameras.csv", "fusion.png", "history.csv", "reconstruction.npz", "rejected.csv", "structure.csv", "structure.ply", "summary.json"]
     lines = (run / "structure.csv").read_text().splitlines()
     assert lines[0] == ",".join(STRUCTURE_COLUMNS) and len(lines) == 61
     assert (run / "history.csv").read_text().splitlines()[0] == ",".join(HISTORY_COLUMNS)

@@ -18,7 +18,7 @@ def test_reconstruct_writes_all_files(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "singular values: 1272, " in printed and "rank-3 residual: 2.88" in printed
     assert sorted(p.name for p in out.iterdir()) == [
-        "motion.csv", "structure.csv", "structure.ply", "structure.png", "summary.json"]
+        "motion.csv", "reconstruction.npz", "structure.csv", "structure.ply", "structure.png", "summary.json"]
     header = (out / "structure.csv").read_text().splitlines()[0]
     assert header == "track_id,X,Y,Z,cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz,views,reprojection_rms,status"
     structure = np.loadtxt(out / "structure.csv", delimiter=",", skiprows=1, usecols=range(12))

@@ -50,7 +50,7 @@ def test_perspective_run_folder_files_report_and_accuracy(files, scene, capsys):
     assert "registered: 7" in printed and "reprojection RMS" in printed
     run = files / "run"
     assert sorted(p.name for p in run.iterdir()) == [
-        "cameras.csv", "reconstruction.png", "structure.csv", "structure.ply", "summary.json"]
+        "cameras.csv", "reconstruction.npz", "reconstruction.png", "structure.csv", "structure.ply", "summary.json"]
     assert (run / "structure.csv").read_text().splitlines()[0] == ",".join(STRUCTURE_COLUMNS)
     assert (run / "cameras.csv").read_text().splitlines()[0] == ",".join(POSE_COLUMNS + POSE_STD_COLUMNS)
     assert "free-network gauge" in (run / "structure.ply").read_text().splitlines()[2]

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     import argparse
 
 # Order shown in --help.
-SUBCOMMANDS = ["demo", "track", "reconstruct", "fuse", "report", "batch", "tables", "consistency", "scene"]
+SUBCOMMANDS = ["demo", "track", "reconstruct", "fuse", "export", "report", "batch", "tables", "consistency", "scene"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -54,7 +54,7 @@ from ..structure.geometry.camera_checks import (
 )
 from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices
 from ._csv import csv_text, number, read_rows, where
-from .colmap import MODEL_PARTS, locate_colmap_model, read_colmap_model
+from .colmap import MODEL_PARTS, locate_colmap_model, read_colmap_model, read_skew
 from .tracks import _indices
 
 __all__ = [
@@ -268,6 +268,9 @@ def _check_matrices(P: np.ndarray, places: list[str], frames: np.ndarray) -> Non
                                 f"its projection matrix is not invertible")
 
 
+_FRAME_NAME = re.compile(r"frame_(\d+)\.\w+")
+
+
 def _natural_key(name: str) -> list[tuple[int, object]]:
     return [(0, int(run)) if run.isdigit() else (1, run.lower()) for run in re.findall(r"\d+|\D+", name)]
 
@@ -285,16 +288,23 @@ def match_image_names(names: Sequence[str], frame_names: Sequence[str] | Mapping
     Returns
     -------
     frames : (I,) int64 — the frame of each image.
-    rule : ``"name"`` or ``"order"``.
+    rule : ``"name"``, ``"frame number"`` (every name is ``frame_N.ext``, as ``kalmansfm export`` names
+        frames without source images) or ``"order"``.
 
     Examples
     --------
     >>> match_image_names(["img10.png", "img9.png"], None, "images.txt")
     (array([1, 0]), 'order')
+    >>> match_image_names(["frame_000020.png", "frame_000021.png"], None, "images.txt")
+    (array([20, 21]), 'frame number')
     >>> match_image_names(["images/b.png", "a.png"], ["a.png", "b.png"], "images.txt")
     (array([1, 0]), 'name')
     """
     if frame_names is None:
+        numbered = [_FRAME_NAME.fullmatch(Path(name).name) for name in names]
+        if names and all(numbered) and len({int(m.group(1)) for m in numbered}) == len(names):  # type: ignore[union-attr]
+            # the names kalmansfm export gives frames whose source images it does not know
+            return np.array([int(m.group(1)) for m in numbered], dtype=np.int64), "frame number"  # type: ignore[union-attr]
         order = sorted(range(len(names)), key=lambda i: (_natural_key(names[i]), i))
         frames = np.empty(len(names), dtype=np.int64)
         frames[order] = np.arange(len(names))
@@ -336,6 +346,10 @@ def _colmap_cameras(path: str | os.PathLike[str], frame_names: Sequence[str] | M
         raise InvalidInputError(f"{where(folder / f'cameras{ext}')}: camera {images.camera_ids[i]} (of image "
                                 f"{images.names[i]!r}): {problem[1]}")
     frames, rule = match_image_names(images.names, frame_names, where(file))
+    skew = read_skew(folder)
+    if skew:  # the skew kalmansfm export mapped out of the 2-D points: the original K again
+        K = np.array(K, dtype=np.float64)
+        K[:, 0, 1] = [skew.get(name, 0.0) for name in images.names]
     with np.errstate(all="ignore"):
         P = K @ np.concatenate([images.rotations(), images.translations[:, :, None]], axis=2)
     _check_matrices(P, [f"{where(file)}: image {name!r}" for name in images.names], frames)

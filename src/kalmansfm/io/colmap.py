@@ -69,6 +69,7 @@ from .atomic import atomic_write
 __all__ = [
     "COLMAP_PIXEL_OFFSET",
     "COVARIANCE_FILE",
+    "SKEW_FILE",
     "SUPPORTED_MODELS",
     "ColmapCameras",
     "ColmapImages",
@@ -80,12 +81,16 @@ __all__ = [
     "locate_colmap_model",
     "read_colmap_cameras",
     "read_colmap_model",
+    "read_skew",
+    "skew_text",
     "to_colmap_pixels",
     "write_colmap_model",
 ]
 
 #: The side-car of point covariances.
 COVARIANCE_FILE = "points3D_covariance.txt"
+#: The side-car of the skew of each image's K (COLMAP's cameras have none; see io.reconstruction.colmap_of).
+SKEW_FILE = "cameras_skew.txt"
 #: The largest model file read (COLMAP's images file holds every keypoint of every image).
 MAX_MODEL_BYTES = 1 << 33
 #: Colour written for points without one (mid grey, rather than COLMAP's black, which viewers show as a hole).
@@ -571,3 +576,28 @@ def _read_covariances(file: Path, ids: np.ndarray) -> tuple[np.ndarray | None, s
     for k, (i, j) in enumerate(_COVARIANCE_ENTRIES):
         cov[at, i, j] = cov[at, j, i] = values[:, k]
     return cov, gauge
+
+
+def skew_text(names: list[str], skew: np.ndarray) -> str:
+    """``cameras_skew.txt``: one ``IMAGE_NAME SKEW`` line per image whose K has a skew."""
+    lines = ["# kalmansfm: the skew (K[0, 1], pixels) of each image's camera; COLMAP's cameras have none, so the",
+             "# 2-D points of these images were mapped to the camera without it (x0 = K0 K^-1 x)"]
+    lines += [f"{name} {value!r}" for name, value in zip(names, skew.tolist()) if value != 0.0]
+    return "\n".join(lines) + "\n"
+
+
+def read_skew(folder: Path) -> dict[str, float]:
+    """The skew side-car of a model folder as image name → skew ({} when there is none)."""
+    file = folder / SKEW_FILE
+    if not file.is_file():
+        return {}
+    out = {}
+    for number, line in enumerate(file.read_text(encoding="utf-8").splitlines(), start=1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        name, _, value = line.rpartition(" ")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise InvalidInputError(f"{where(file, number)}: expected IMAGE_NAME SKEW; got {line!r}") from None
+    return out

@@ -112,6 +112,7 @@ def run_demo(request: DemoRequest) -> DemoRun:
     check_output_directory(request.out, inputs=inputs)  # before the work, not after it
     clock = Stopwatch()
     scene = None
+    image_names = None
     points, track_ids = request.points, request.track_ids
     with clock.step("frames"):
         if request.input is None:
@@ -127,6 +128,8 @@ def run_demo(request: DemoRequest) -> DemoRun:
             made_from = demo_source(request, sequence)
             frames = list(sequence)  # FrameSource yields (H, W) uint8 grey frames
             source = str(request.input)
+            if len(sequence.paths) == len(frames):  # a folder or glob of images: their names
+                image_names = [Path(p).name for p in sequence.paths]
     with clock.step("tracking"):
         tracks = track(frames, points, track_ids=track_ids, settings=request.tracker, progress=request.progress)
     measured = tracks
@@ -180,7 +183,9 @@ def run_demo(request: DemoRequest) -> DemoRun:
             names = stage_frames(out, frames, "frames/") if request.save_frames else []
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
             if reconstruction is not None:
-                names += stage_reconstruction(out, reconstruction, comment=f"kalmansfm demo of {source}")
+                names += stage_reconstruction(out, reconstruction, comment=f"kalmansfm demo of {source}",
+                                              image_names=image_names,
+                                              image_size=(frames[0].shape[1], frames[0].shape[0]))
             if scene is not None:
                 names += stage_ground_truth(out, scene)
         summary = stage_summary(out, summary, clock, names)

@@ -6,7 +6,7 @@ import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
+import numpy as np  # noqa: F401 (the examples use it)
 
 from .._version import __version__
 from ..io.atomic import check_output_directory, output_directory
@@ -93,6 +93,6 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     with output_directory(request.out, inputs=inputs) as out:
         with clock.step("writing"):
             names = stage_reconstruction(out, rec, comment=f"kalmansfm {__version__} fuse {request.tracks.name}",
-                                         plot=request.plot)
+                                         plot=request.plot, image_size=tracks.image_size)
         summary = stage_summary(out, summary, clock, names)
     return FuseRun(request.out, data, rec, summary)

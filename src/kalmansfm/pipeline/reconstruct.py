@@ -191,6 +191,7 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
                          smoothed=tracks.smoothed, reconstruction=metrics, warnings=warnings)
     with output_directory(request.out, inputs=inputs) as out:
         with clock.step("writing"):
-            names = stage_reconstruction(out, chosen, comment=f"kalmansfm {__version__} from {name}", plot=request.plot)
+            names = stage_reconstruction(out, chosen, comment=f"kalmansfm {__version__} from {name}", plot=request.plot,
+                                         image_size=tracks.image_size)
         summary = stage_summary(out, summary, clock, names)
     return ReconstructRun(request.out, tracks, chosen, summary, other)

@@ -17,6 +17,7 @@ import numpy as np
 from ..io.atomic import OutputDirectory
 from ..io.cameras import cameras_csv, pose_cameras_csv
 from ..io.fusion import history_csv, rejected_csv
+from ..io.reconstruction import RECONSTRUCTION_FILE, write_reconstruction
 from ..io.structure import motion_csv, structure_csv, structure_ply
 from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
 from ..io.tracks import write_tracks_csv, write_tracks_npz
@@ -91,7 +92,9 @@ def stage_tracking(
     return names
 
 
-def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: str, plot: bool = True) -> list[str]:
+def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: str, plot: bool = True,
+                         image_names: list[str] | None = None,
+                         image_size: tuple[int, int] | None = None) -> list[str]:
     """Stage the files of any reconstruction and return their names.
 
     Every reconstruction: ``structure.csv`` (each track's point, covariance, views, reprojection
@@ -106,7 +109,9 @@ def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: 
     * a fusion history: ``history.csv`` and ``fusion.png`` (uncertainty against views);
       observations rejected by a fusion's outlier test: ``rejected.csv``.
 
-    ``comment`` goes into the PLY header.
+    And always ``reconstruction.npz``: the whole record (:mod:`kalmansfm.io.reconstruction`), with the
+    frames' image names and size when known — what ``kalmansfm export`` reads.  ``comment`` goes into
+    the PLY header.
     """
     frames, ids = rec.frame_ids, rec.track_ids
     out.write_text("structure.csv", structure_csv(ids, rec.points, covariances=rec.point_covariances, views=rec.views,
@@ -115,7 +120,8 @@ def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: 
     out.write_text("structure.ply", structure_ply(ids, rec.points, comment=f"{comment}; covariances in the "
                                                   f"{rec.covariance_gauge}",
                                                   properties={"uncertainty": rms_std(rec.point_covariances)}))
-    names = ["structure.csv", "structure.ply"]
+    write_reconstruction(rec, out.file(RECONSTRUCTION_FILE), image_names=image_names, image_size=image_size)
+    names = ["structure.csv", "structure.ply", RECONSTRUCTION_FILE]
     registered = rec.registered
     if rec.camera_model == "affine":
         out.write_text("motion.csv", motion_csv(frames, rec.motion, rec.image_translation))
