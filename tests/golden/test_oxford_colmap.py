@@ -67,13 +67,13 @@ def test_the_skew_is_mapped_out_and_kept_aside(house):
     assert len(skew) == rec.registered.sum() and max(abs(s) for s in skew.values()) > 20  # up to -26 px
     # pycolmap projects our 3-D points onto the model's (zero-skew) 2-D points: the model is consistent
     model = pycolmap.Reconstruction(str(house / "text" / "sparse" / "0"))
-    image = next(iter(model.images.values()))
-    camera = model.cameras[image.camera_id]
     worst = 0.0
-    for p2d in image.points2D:
-        if p2d.has_point3D():
-            projected = camera.img_from_cam(image.cam_from_world() * model.points3D[p2d.point3D_id].xyz)
-            worst = max(worst, float(np.linalg.norm(projected - p2d.xy)))
+    for image in model.images.values():
+        camera = model.cameras[image.camera_id]
+        for p2d in image.points2D:
+            if p2d.has_point3D():
+                projected = camera.img_from_cam(image.cam_from_world() * model.points3D[p2d.point3D_id].xyz)
+                worst = max(worst, float(np.linalg.norm(projected - p2d.xy)))
     assert worst < 3.0  # the reprojection error of bundle adjustment, not the skew's shear
 
 
