@@ -98,8 +98,8 @@ class KnownCameras:
     source_format : str — ``"projection-matrix CSV"``, ``"intrinsics + pose CSV"``, ``"COLMAP text"``
         or ``"COLMAP binary"``.
     matched_by : str — how cameras got their frame: ``"frame column"`` (CSV), ``"name"`` (a COLMAP
-        image name equal to a frame's name) or ``"order"`` (COLMAP images in natural name order are
-        frames 0, 1, …).
+        image name equal to a frame's name), ``"frame number"`` (names ``frame_N.ext``, as ``kalmansfm
+        export`` writes them) or ``"order"`` (COLMAP images in natural name order are frames 0, 1, …).
     image_names : tuple of str — the COLMAP image name of each camera (empty for a CSV).
     warnings : tuple of str — what was accepted but deserves attention (rotations repaired).
     """

@@ -10,7 +10,7 @@ import numpy as np  # noqa: F401 (the examples use it)
 
 from .._version import __version__
 from ..io.atomic import check_output_directory, output_directory
-from ..io.cameras import CameraObservations, match_cameras, read_cameras
+from ..io.cameras import CameraObservations, match_cameras, read_known_cameras
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_tracks
 from ..structure import Reconstruction
@@ -67,13 +67,17 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     check_output_directory(request.out, inputs=inputs)
     clock = Stopwatch()
     with clock.step("reading"):
-        cameras = read_cameras(request.cameras)
+        known = read_known_cameras(request.cameras)
+        cameras = known.cameras
         tracks = read_tracks(request.tracks)
         # where the chunks are fused (scheduler, workers) does not change the result
         source = run_source(request.tracks, inputs, request_options(request))
         data = match_cameras(tracks.observations(), tracks.frames, tracks.track_ids, cameras,
                              source=str(request.tracks))
-    warnings = []
+    warnings = list(known.warnings)
+    if known.matched_by == "order":
+        warnings.append(f"the images of the COLMAP model {request.cameras.name} were matched to frames by the "
+                        "natural order of their names (frame 0 = the first name)")
     if data.frames_without_camera.size:
         shown = ", ".join(str(f) for f in data.frames_without_camera[:8])
         more = f", … ({data.frames_without_camera.size} in all)" if data.frames_without_camera.size > 8 else ""
