@@ -58,7 +58,7 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     >>> _ = (folder / "tracks.csv").write_text("frame,track_id,x,y\\n" + "\\n".join(rows) + "\\n")
     >>> run = run_fuse(FuseRequest(folder / "tracks.csv", folder / "cameras.csv", folder / "fused", plot=False))
     >>> run.summary.reconstruction.reconstructed, sorted(run.summary.files)[:3]
-    (30, ['cameras.csv', 'history.csv', 'rejected.csv'])
+    (30, ['cameras.csv', 'history.csv', 'reconstruction.npz'])
     """
     request = replace(request, tracks=tracks_file(request.tracks))
     settings = request.settings
