@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import webbrowser
 from pathlib import Path
 
@@ -74,4 +75,9 @@ def run(args: argparse.Namespace) -> int:
     print(describe(result))
     if args.open and result.report is not None:
         webbrowser.open(result.report.resolve().as_uri())
+    if result.reconstruction is None:
+        # the run folder holds the tracks and says why; a script must still see that the job is not done
+        print(f"kalmansfm demo: error: no {args.camera} reconstruction ({result.summary.structure_error}); the tracks "
+              f"and the report were written to {result.out_dir}", file=sys.stderr)
+        return 1
     return 0

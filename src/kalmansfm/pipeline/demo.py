@@ -7,7 +7,6 @@ builds its report.  ``kalmansfm batch`` runs it once per sequence.
 
 from __future__ import annotations
 
-import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +30,6 @@ from .stage import Stopwatch, stage_reconstruction, stage_summary, stage_trackin
 
 __all__ = ["DemoRun", "demo_source", "describe", "run_demo"]
 
-log = logging.getLogger("kalmansfm")
 
 
 @dataclass(frozen=True)
@@ -150,14 +148,12 @@ def run_demo(request: DemoRequest) -> DemoRun:
                 reconstruction = reconstruction.with_ids(measured.frames, measured.track_ids)
             except NotEnoughDataError as exc:
                 structure_error = str(exc)
-                log.warning("perspective reconstruction skipped: %s", exc)
     else:
         with clock.step("factorization"):
             try:
                 reconstruction = factorize_tracks(tracks, weighted=camera.weighted, max_iterations=camera.max_iterations)
             except NotEnoughDataError as exc:
                 structure_error = str(exc)
-                log.warning("factorization skipped: %s", exc)
     truth = None
     if scene is not None:
         truth = compare_with_truth(tracks, reconstruction, scene.ground_truth())
