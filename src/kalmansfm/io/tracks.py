@@ -13,12 +13,15 @@ give less, and :func:`read_tracks` accepts any CSV with at least ``frame,track_i
 are optional and every row without a status is a measurement.  Comments, blank lines, a
 byte-order mark and the other rules every CSV reader shares: docs/formats.md (:func:`._csv.read_rows`).
 
-``tracks.npz`` holds ``positions (F,P,2)``, ``status (F,P)`` int8
-(:class:`~kalmansfm.tracking.tracks.TrackStatus` values), ``track_ids (P,)`` and
-optionally ``states (F,P,4)``, ``covariances (F,P,4,4)``, ``frames (F,)``, ``scores (F,P)``,
-``image_size`` (width, height) and ``meta``: a JSON object with the schema version, the
-tracker's settings (:class:`~kalmansfm.tracking.settings.TrackerSettings`) and whether
-the tracks are smoothed.
+``tracks.npz`` holds ``status (F,P)`` int8 (:class:`~kalmansfm.tracking.tracks.TrackStatus`
+values), ``track_ids (P,)``, ``frames (F,)``, the bits ``present`` of the (frame, track) entries
+that have a value, and for those entries only (frame-major) ``entry_positions (n,2)`` and
+optionally ``entry_states (n,4)``, ``entry_covariances_upper (n,10)`` (the upper triangle, row by
+row; ``entry_covariances (n,4,4)`` when one is not symmetric) and ``entry_scores (n,)``; then
+``image_size`` (width, height) and ``meta``: a JSON object with the schema version, the tracker's
+settings (:class:`~kalmansfm.tracking.settings.TrackerSettings`) and whether the tracks are
+smoothed.  Files of the dense layout (``positions (F,P,2)``, ``states``, ``covariances``, ``scores``
+as whole arrays) read as well.
 
 Every reader returns :class:`~kalmansfm.tracking.tracks.Tracks`; :func:`read_tracks` (any
 format) puts the track ids in ascending order, :func:`read_tracks_npz` keeps the file's
@@ -68,7 +71,11 @@ TRACK_CSV_COLUMNS = ("frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y"
 #: The least a tracks CSV holds: one measured position per row (what other tools and converters write).
 OBSERVATION_COLUMNS = ("frame", "track_id", "x", "y")
 _REQUIRED = OBSERVATION_COLUMNS
-_NPZ_SCHEMA = 1
+#: Version 2 keeps only the entries where a track exists (``present`` bits, ``entry_*`` arrays); version 1
+#: files (dense arrays) are read as well.
+_NPZ_SCHEMA = 2
+# The upper triangle of a 4 × 4 matrix, row by row.
+_UPPER4 = np.triu_indices(4)
 
 
 # --- writing --------------------------------------------------------------------------------
@@ -147,17 +154,44 @@ def write_tracks_csv(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
 
 
 def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
-    """Write the arrays of ``tracks`` to a compressed ``.npz`` file at ``path``."""
+    """Write ``tracks`` to a compressed ``.npz`` at ``path``, holding only the entries where a track exists.
+
+    Positions, states, covariances (their upper triangle, when every one is symmetric) and scores
+    are kept for the (frame, track) entries that have a value, in frame-major order, next to the
+    dense ``status``: a long clip with many short tracks takes the room of its estimates, not of
+    frames × tracks.  :func:`read_tracks_npz` rebuilds the dense arrays exactly.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> t = Tracks.empty(3, 2); t.status[1, 0] = 1; t.positions[1, 0] = 4.0, 5.0; t.covariances[1, 0] = np.eye(4)
+    >>> back = read_tracks_npz(write_tracks_npz(t, pathlib.Path(tempfile.mkdtemp()) / "t.npz"))
+    >>> bool(np.array_equal(back.positions, t.positions, equal_nan=True)), back.status.tolist()
+    (True, [[0, 0], [1, 0], [0, 0]])
+    """
     path = Path(path)
+    present = np.isfinite(tracks.positions).any(axis=2) | (tracks.status != TrackStatus.NONE)
+    for name in ("states", "covariances"):
+        values = getattr(tracks, name)
+        if values is not None:
+            present |= np.isfinite(values).reshape(values.shape[0], values.shape[1], -1).any(axis=2)
     arrays = {
-        "positions": tracks.positions,
         "status": tracks.status.astype(np.int8),
         "track_ids": tracks.track_ids.astype(np.int64),
         "frames": tracks.frames,
+        "present": np.packbits(present, axis=None),
+        "entry_positions": tracks.positions[present],
     }
-    for name in ("states", "covariances", "scores"):
-        if getattr(tracks, name) is not None:
-            arrays[name] = getattr(tracks, name)
+    if tracks.states is not None:
+        arrays["entry_states"] = tracks.states[present]
+    if tracks.covariances is not None:
+        covariances = tracks.covariances[present]
+        if np.array_equal(covariances, np.swapaxes(covariances, 1, 2), equal_nan=True):
+            arrays["entry_covariances_upper"] = covariances[:, _UPPER4[0], _UPPER4[1]]
+        else:
+            arrays["entry_covariances"] = covariances
+    if tracks.scores is not None:
+        arrays["entry_scores"] = tracks.scores[present]
     if tracks.image_size is not None:
         arrays["image_size"] = np.asarray(tracks.image_size, dtype=np.int64)
     meta = {"schema_version": _NPZ_SCHEMA, "settings": to_json(tracks.settings), "smoothed": tracks.smoothed}
@@ -165,6 +199,41 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
     with open(path, "wb") as handle:
         np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]
     return path
+
+
+def _dense_arrays(file: Path, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The dense (frames, tracks, ...) arrays of a file written with only its present entries."""
+    status = arrays["status"]
+    if status.ndim != 2:
+        raise InvalidInputError(f"{where(file)}: status must be a (frames, tracks) array; got shape {status.shape}")
+    F, P = status.shape
+    bits = arrays["present"]
+    if bits.dtype != np.uint8 or bits.ndim != 1 or bits.size != (F * P + 7) // 8:
+        raise InvalidInputError(f"{where(file)}: present must hold the {F} x {P} entry bits; got {bits.dtype} {bits.shape}")
+    present = np.unpackbits(bits, count=F * P).astype(bool).reshape(F, P)
+    n = int(present.sum())
+    dense = dict(arrays)
+    for name, tail in (("positions", (2,)), ("states", (4,)), ("covariances", (4, 4)), ("scores", ())):
+        key = f"entry_{name}"
+        if name == "covariances" and "entry_covariances_upper" in arrays:
+            upper = arrays["entry_covariances_upper"]
+            if upper.shape != (n, 10):
+                raise InvalidInputError(f"{where(file)}: entry_covariances_upper must have shape ({n}, 10); got {upper.shape}")
+            full = np.empty((n, 4, 4), dtype=upper.dtype)
+            full[:, _UPPER4[0], _UPPER4[1]] = upper
+            full[:, _UPPER4[1], _UPPER4[0]] = upper
+            values = full
+        elif key in arrays:
+            values = arrays[key]
+        else:
+            continue
+        if values.shape != (n, *tail) or values.dtype.kind not in "fiu":
+            raise InvalidInputError(f"{where(file)}: {key} must be a numeric ({n}{''.join(f', {d}' for d in tail)}) array; "
+                                    f"got {values.dtype} {values.shape}")
+        out = np.full((F, P, *tail), np.nan)
+        out[present] = values
+        dense[name] = out
+    return dense
 
 
 # --- reading --------------------------------------------------------------------------------
@@ -333,6 +402,8 @@ def read_tracks_npz(path: str | os.PathLike[str]) -> Tracks:
     """
     file = Path(path)
     arrays = load_npz(file)
+    if "present" in arrays and "status" in arrays:  # the compact layout (schema 2)
+        arrays = _dense_arrays(file, arrays)
     missing = [k for k in ("positions", "status", "track_ids") if k not in arrays]
     if missing:
         raise InvalidInputError(f"{where(file)}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(arrays)) or 'none'}")

@@ -262,15 +262,20 @@ def tracks_overview_png(tracks: Tracks, last_frame: np.ndarray) -> bytes:
 
 
 def tracks_gif(
-    frames: Iterable[np.ndarray], tracks: Tracks, *, max_width: int = 320, max_frames: int = 150, fps: float = 10.0
+    frames: Iterable[np.ndarray], tracks: Tracks, *, max_width: int = 320, max_frames: int = 60, fps: float = 10.0
 ) -> bytes:
-    """``tracks.gif``: the first ``max_frames`` frames with the tracks drawn, shrunk to ``max_width``."""
+    """``tracks.gif``: the whole clip with the tracks drawn, at most ``max_frames`` evenly spaced frames shrunk to
+    ``max_width`` — a size and a writing time that do not grow with the clip's length."""
     from PIL import Image
 
+    shown = set(np.unique(np.linspace(0, tracks.n_frames - 1, min(max_frames, tracks.n_frames)).round().astype(int))
+                .tolist()) if tracks.n_frames else set()
     images = []
     for f, frame in enumerate(frames):
-        if f >= min(max_frames, tracks.n_frames):
+        if f >= tracks.n_frames:
             break
+        if f not in shown:
+            continue
         (drawn,) = render_tracked_frames([frame], tracks, [f], target_width=max_width)
         images.append(Image.fromarray(cv2.cvtColor(drawn, cv2.COLOR_BGR2RGB)))
     buffer = io.BytesIO()
