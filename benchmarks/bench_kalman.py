@@ -51,6 +51,7 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
@@ -186,7 +187,10 @@ def run_numpy_reference(x0, zs, model):
 
 def run_decoupled_reference(x0, zs, model):
     """The NumPy decoupled constant-velocity path (chunked elementwise passes), which the filter ran
-    before the compiled kernels and which the tests now compare the kernels with."""
+    before the compiled kernels and which the tests now compare the kernels with (tests/reference)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from reference import decoupled as reference
+
     from kalmansfm.estimation import _decoupled
 
     q = _decoupled.axis_blocks(model.Q)[:1]
@@ -195,8 +199,8 @@ def run_decoupled_reference(x0, zs, model):
     C = np.ascontiguousarray(np.broadcast_to(_decoupled.axis_blocks(model.P0)[:1, :, None], (1, 3, x0.shape[0])))
     with Clock() as c:
         for z in zs:
-            X, C = _decoupled.predict(X, C, 1.0, q, None)
-            X, C, _ = _decoupled.update(X, C, z, r, True, np.isnan(z))
+            X, C = reference.predict(X, C, 1.0, q, None)
+            X, C, _ = reference.update(X, C, z, r, True, np.isnan(z))
     return c.seconds, X.T
 
 
