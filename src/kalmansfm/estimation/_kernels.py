@@ -49,6 +49,10 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from .._compilation import watch_compilation
+
+watch_compilation()  # one line on stderr when a kernel is compiled (not when it is loaded from the cache)
+
 # cache=True: compiled once per machine (in __pycache__ next to this file, or numba's
 # user cache directory when the package is installed read-only).
 _JIT = {"cache": True, "nogil": True}

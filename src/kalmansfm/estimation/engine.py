@@ -35,9 +35,10 @@ __all__ = ["COMPILED_MIN_TRACKS", "FilterEngine", "kernels_for"]
 
 #: Fewer tracks than this run the NumPy twins of the compiled kernels (:mod:`._numpy_kernels`,
 #: the same numbers bit for bit).  A kernel is compiled the first time it runs on a machine
-#: (1–4 s each, then cached); below this size its NumPy twin costs at most about 0.2 ms more per
-#: step (docs/performance.md), so a run of a few thousand steps never pays back the compilation.
-COMPILED_MIN_TRACKS = 4096
+#: (1–6 s, then cached); below this size its twin costs at most about 0.05 ms (constant-velocity
+#: form) or 0.5 ms (general form) more per step (docs/performance.md), so a run of a few
+#: thousand steps costs less than the compilation would.
+COMPILED_MIN_TRACKS = 1024
 
 
 def kernels_for(N: int):
