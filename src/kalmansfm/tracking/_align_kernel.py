@@ -1,7 +1,7 @@
 """Compiled (numba) kernel of the differential matcher's template alignment: one pass per track.
 
-The same algorithm as the NumPy reference in :mod:`kalmansfm.tracking.differential`
-(``_align_numpy``: ``_template_terms``, ``_compare`` and the bilinear
+The same algorithm as the NumPy reference in ``tests/reference/alignment.py``
+(``align_numpy``: ``template_terms``, ``compare`` and the bilinear
 ``sample_patches``), written per track: the NumPy version streams every
 (tracks × pixels) array through memory a few dozen times per Gauss–Newton step, this
 one keeps a template's 81 inner pixels, their gradients and the patch in the cache
@@ -29,7 +29,7 @@ from .._compilation import watch_compilation
 
 watch_compilation()  # one line on stderr when the kernel is compiled (not when it is loaded from the cache)
 
-# The constants are those of differential.py (passed in, one definition there).
+# The constants are those of alignment.py (passed in, one definition there).
 # The helpers are compiled apart and inlined by LLVM: inlining them in numba's IR (inline="always")
 # cost about 0.5 s more compilation, for the same results to the last bit and the same speed.
 
@@ -59,7 +59,7 @@ def _sample(padded, pad, size, x, y, out):
 
 @njit(cache=True, fastmath={"reassoc", "contract", "arcp"})
 def _fit(inner, gx, gy, centre, norm, centre_energy, well_posed_template, patch, scale_floor, quantization, flat, residual, result):
-    """Compare one template (its terms) with the inner pixels of ``patch``; see ``_compare``.
+    """Compare one template (its terms) with the inner pixels of ``patch``; see ``compare`` in the reference.
 
     result ← [step x, step y, ncc, σ², cov xx, cov xy, cov yy, well posed]."""
     w = patch.shape[0]
