@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from kalmansfm import InvalidInputError, KalmanFilter, SingularCovarianceError
-from kalmansfm.estimation import _kernels, engine
+from kalmansfm.estimation import _kernels, _numpy_kernels, engine
 from kalmansfm.estimation import constant_velocity_2d
 from reference import decoupled as reference
 
@@ -27,7 +27,15 @@ def _measurements(rng, T, N, p_missing=0.2):
     return zs
 
 
-def test_float32_is_computed_in_float32_to_the_last_bit():
+# Compiling the float32 variants of the kernels takes seconds per kernel on a fresh machine: the
+# compiled-path float32 tests are slow ones; the NumPy twins (the same bits, compared with the
+# kernels in float64 by default and in float32 in the slow run) keep float32 in the default run.
+COMPILED_SLOW = pytest.param("compiled", marks=pytest.mark.slow)
+
+
+@pytest.mark.parametrize("kernels", [pytest.param(_kernels, marks=pytest.mark.slow, id="compiled"),
+                                     pytest.param(_numpy_kernels, id="numpy")])
+def test_float32_is_computed_in_float32_to_the_last_bit(kernels):
     """The float32 step equals the NumPy reference run in float32 bit for bit; a float64 computation rounded
     to float32 would differ from it in the last bits."""
     rng = np.random.default_rng(0)
@@ -40,7 +48,7 @@ def test_float32_is_computed_in_float32_to_the_last_bit():
     q = np.array([[16, 0, 4]] * 2, np.float32)
     r = np.array([[4], [4]], np.float32)
     Xo, Co, Yo = np.empty_like(X), np.empty_like(C), np.empty((2, N), np.float32)
-    assert _kernels.cv_step(X, C, z.view(np.complex64)[:, 0], np.float32(1), q, r, None, True, Xo, Co, Yo) == (0, 0, 0)
+    assert kernels.cv_step(X, C, z.view(np.complex64)[:, 0], np.float32(1), q, r, None, True, Xo, Co, Yo) == (0, 0, 0)
     Xp, Cp = reference.predict(X, C, np.float32(1), q[:1], None)
     Xr, Cr, _ = reference.update(Xp, Cp, z, r[:, 0], True, np.isnan(z))
     assert Xr.dtype == Cr.dtype == np.float32
@@ -48,12 +56,13 @@ def test_float32_is_computed_in_float32_to_the_last_bit():
     np.testing.assert_array_equal(Co, Cr)
     # the same step in float64, rounded: not the float32 answer
     X64, C64 = np.empty((4, N)), np.empty((1, 3, N))
-    _kernels.cv_step(X.astype(float), C.astype(float), z.astype(float).view(np.complex128)[:, 0], 1.0, q.astype(float),
-                     r.astype(float), None, True, X64, C64, np.empty((2, N)))
+    kernels.cv_step(X.astype(float), C.astype(float), z.astype(float).view(np.complex128)[:, 0], 1.0, q.astype(float),
+                    r.astype(float), None, True, X64, C64, np.empty((2, N)))
     assert not np.array_equal(X64.astype(np.float32), Xo)
 
 
 @pytest.mark.parametrize("Q", [CV.Q, COUPLED_Q], ids=["decoupled", "general"])
+@pytest.mark.parametrize("kernel_path", [COMPILED_SLOW, "numpy"], indirect=True)
 def test_float32_filter_keeps_float32_everywhere(Q, kernel_path):
     rng = np.random.default_rng(1)
     kf = KalmanFilter(rng.normal(size=(50, 4)), CV.P0, CV.F, CV.H, Q, CV.R, dtype=np.float32)
@@ -231,7 +240,7 @@ def _run(kf, steps, rng, N):
 
 
 @pytest.mark.parametrize("Q", [CV.Q, COUPLED_Q], ids=["decoupled", "general"])
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("dtype", [np.float64, pytest.param(np.float32, marks=pytest.mark.slow)])
 def test_the_numpy_twins_give_the_filter_the_kernels_bits(Q, dtype, monkeypatch):
     """The same run on the compiled kernels and on their NumPy twins: every public array equal to the last bit."""
     runs = []
