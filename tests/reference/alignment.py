@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kalmansfm.tracking.alignment import _QUANTIZATION_VARIANCE, Alignment, AnchorTemplates, DifferentialFrame, \
-    _centre_weights
+from kalmansfm.tracking.alignment import (_QUANTIZATION_VARIANCE, Alignment, AnchorTemplates, DifferentialFrame,
+                                         _centre_weights)
 from kalmansfm.tracking.matching import well_posed_2x2
 
 

@@ -28,8 +28,8 @@ import numpy as np
 from ..errors import InvalidInputError, SingularCovarianceError
 from . import _decoupled, _kernels, _numpy_kernels
 from ._buffers import BufferPool
-from ._linalg import LOG_2PI, cholesky_checked, gain_and_posterior, not_positive_definite, solve_lower, \
-    solve_upper_transposed, symmetrize
+from ._linalg import (LOG_2PI, cholesky_checked, gain_and_posterior, not_positive_definite, solve_lower,
+                      solve_upper_transposed, symmetrize)
 
 __all__ = ["COMPILED_MIN_TRACKS", "FilterEngine", "kernels_for"]
 
@@ -45,6 +45,7 @@ def kernels_for(N: int):
     """The kernels that run a step of N tracks: the compiled ones, or their NumPy twins below
     :data:`COMPILED_MIN_TRACKS` (same functions, same outputs, bit for bit)."""
     return _kernels if N >= COMPILED_MIN_TRACKS else _numpy_kernels
+
 
 class _MaskedUpdate:
     """Statistics of one compiled update of the general form, computed from the prior on access.
