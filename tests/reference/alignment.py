@@ -33,7 +33,6 @@ class _TemplateTerms:
     centre_energy: np.ndarray
 
 
-
 def template_terms(templates: np.ndarray) -> _TemplateTerms:
     t = np.asarray(templates, dtype=np.float32)
     n, w = t.shape[0], t.shape[-1]
@@ -108,7 +107,6 @@ def compare(terms: _TemplateTerms, patches: np.ndarray) -> _Fit:
     return _Fit(ncc, sigma_sq, step, covariance)
 
 
-
 def align_numpy(frame: DifferentialFrame, bank: AnchorTemplates, start: np.ndarray, iterations: int, max_shift_px: float) -> Alignment:
     """The NumPy reference of the alignment: all templates at once, one array pass per operation."""
     w = bank.templates.shape[-1]
@@ -125,4 +123,3 @@ def align_numpy(frame: DifferentialFrame, bank: AnchorTemplates, start: np.ndarr
         patches[~converged] = frame.patches(start[~converged], w)
     fit = compare(terms, patches[:, 1:-1, 1:-1])
     return Alignment(current, fit.ncc, fit.covariance, terms.min_eigenvalue, fit.sigma_sq, converged, patches)
-

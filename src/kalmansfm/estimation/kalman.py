@@ -192,7 +192,6 @@ def kalman_update(
     return UpdateResult(x_post, P_post, y, S, K, nis, ll, measured)
 
 
-
 @dataclass(frozen=True)
 class InnovationStatistics:
     """Statistics of candidate measurements under the predicted (prior) state, for N filters.
@@ -416,7 +415,6 @@ class KalmanFilter:
             check_covariance("P", arr)
         return arr
 
-
     def _model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return self.F, self.Q, self.H, self.R
 
@@ -487,6 +485,7 @@ class KalmanFilter:
         if self._engine.last is None:
             raise AttributeError(f"{field} is available after the first update()")
         return self._present(getattr(self._engine.last, field), per_filter_ndim)
+
     @property
     def y(self) -> np.ndarray:
         """Innovation z - H x⁻ of the last update, (N, m); NaN where not measured."""

@@ -126,6 +126,7 @@ def pyramid_levels(reach_px: np.ndarray, max_level: int, capture_px: float = CAP
     levels = np.where(np.isfinite(levels), levels, max_level)
     return np.clip(levels, 0, max_level).astype(np.int64)
 
+
 @dataclass(frozen=True)
 class DifferentialSettings:
     """How :func:`measure_differential` follows and judges a match; validated on construction.

@@ -64,7 +64,6 @@ class FrameEstimate:
     status: np.ndarray
 
 
-
 def _as_grey(frame: object, index: int, keep_8_bits: bool = False) -> np.ndarray:
     """The frame as a 2D float32 array (exact for 8- and 16-bit images; single precision is all the matcher uses).
 
@@ -108,7 +107,6 @@ class Tracker:
     >>> np.round(estimate.positions, 1), estimate.status
     (array([[30., 30.]]), array([1], dtype=int8))
     """
-
 
     def __init__(
         self,
@@ -380,7 +378,6 @@ class Tracker:
         )
 
 
-
 def make_settings(settings: TrackerSettings | None, options: dict[str, Any]) -> TrackerSettings:
     """``settings`` (default settings when None) with the keyword ``options`` applied on top.
 
@@ -397,7 +394,6 @@ def make_settings(settings: TrackerSettings | None, options: dict[str, Any]) -> 
     if not isinstance(settings, TrackerSettings):
         raise InvalidInputError(f"settings must be a TrackerSettings; got {type(settings).__name__}")
     return replace(settings, **options) if options else settings
-
 
 
 def track(
