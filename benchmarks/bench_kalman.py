@@ -25,13 +25,16 @@ Printed, each with the load average:
   (NumPy twins: nothing to compile) and above it;
 * peak traced memory of the per-track run;
 * with ``--tracker``: the share of ``kalmansfm.track``'s time spent in the filter on the
-  built-in scene with 500 detected features (this alone, then exit).
+  built-in scene with 500 detected features (this alone, then exit);
+* with ``--twins``: ms per step on the compiled kernels and on their NumPy twins (which the
+  filter runs below ``engine.COMPILED_MIN_TRACKS`` tracks) from 10 to 4096 tracks (alone, then exit).
 
 Run:
 
     python benchmarks/bench_kalman.py                  # the whole set, ~12 min on 2 cores
     python benchmarks/bench_kalman.py --quick          # 10⁵ tracks, no sweep, no first-call or memory pass
     python benchmarks/bench_kalman.py --tracker
+    python benchmarks/bench_kalman.py --twins          # the NumPy twins' extra cost per step, small sizes
 
 Peers that cannot hold the full size in memory (simdkalman stores every step's covariance) or
 are too slow (FilterPy, one Python object per track) are timed on a subsample and reported
@@ -273,6 +276,47 @@ def first_call_costs() -> list[str]:
     return lines
 
 
+def twin_costs(sizes=(10, 100, 500, 1000, 2000, 4096), steps: int = 40, repeats: int = 3) -> list[str]:
+    """ms per predict + update step on the compiled kernels and on their NumPy twins, both forced, for the
+    constant-velocity form (shared R) and the tracker's pattern (prior read first, a per-track 2×2 R: general form)."""
+    from kalmansfm.estimation import engine
+
+    cv = constant_velocity_2d()
+    before = engine.COMPILED_MIN_TRACKS
+
+    def per_step(N, form, threshold):
+        engine.COMPILED_MIN_TRACKS = threshold
+        rng = np.random.default_rng(0)
+        kf = KalmanFilter(rng.normal(scale=10, size=(N, 4)), cv.P0, cv.F, cv.H, cv.Q, cv.R)
+        zs = rng.normal(size=(steps, N, 2))
+        zs[:, ::10] = np.nan
+        R = np.broadcast_to(np.array([[0.3, 0.05], [0.05, 0.2]]), (N, 2, 2)).copy()
+        best = np.inf
+        for _ in range(repeats):
+            with Clock() as c:
+                for z in zs:
+                    kf.predict()
+                    if form == "tracker":
+                        kf.x_prior, kf.P_prior
+                        kf.update(z, R=R)
+                    else:
+                        kf.update(z)
+            best = min(best, c.wall / steps)
+        return best * 1e3
+
+    lines = ["| form | tracks | compiled kernel ms/step | NumPy twin ms/step | twin − kernel |", "|---|---:|---:|---:|---:|"]
+    try:
+        for form in ("constant-velocity", "tracker"):
+            for N in sizes:
+                per_step(N, form, 0)  # compiled or loaded outside the timing
+                kernel, twin = per_step(N, form, 0), per_step(N, form, 2**62)
+                lines.append(f"| {form} | {N:,} | {kernel:.3f} | {twin:.3f} | {twin - kernel:+.3f} |")
+    finally:
+        engine.COMPILED_MIN_TRACKS = before
+    lines.append(f"(load {load()})")
+    return lines
+
+
 def tracker_share(features: int = 500, repeats: int = 5) -> str:
     """Share of kalmansfm.track's wall time spent in KalmanFilter (built-in scene, detected features)."""
     import kalmansfm
@@ -340,9 +384,13 @@ def main() -> None:
     ap.add_argument("--dense-tracks", type=int, default=100_000, help="size of the general dense model rows")
     ap.add_argument("--quick", action="store_true", help="10⁵ tracks, no sweep, no first-call or memory pass")
     ap.add_argument("--tracker", action="store_true", help="only the tracker's filter share")
+    ap.add_argument("--twins", action="store_true", help="only the per-step cost of the NumPy twins against the kernels")
     args = ap.parse_args()
     if args.tracker:
         print(tracker_share())
+        return
+    if args.twins:
+        print("\n".join(twin_costs()))
         return
     if args.quick:
         args.tracks, args.repeats, args.sizes = min(args.tracks, 100_000), 2, ""
