@@ -36,7 +36,7 @@ __all__ = ["COMPILED_MIN_TRACKS", "FilterEngine", "kernels_for"]
 #: Fewer tracks than this run the NumPy twins of the compiled kernels (:mod:`._numpy_kernels`,
 #: the same numbers bit for bit).  A kernel is compiled the first time it runs on a machine
 #: (1–6 s, then cached); below this size its twin costs at most about 0.05 ms (constant-velocity
-#: form) or 0.5 ms (general form) more per step (docs/performance.md), so a run of a few
+#: form) or 0.7 ms (general form) more per step (docs/performance.md), so a run of a few
 #: thousand steps costs less than the compilation would.
 COMPILED_MIN_TRACKS = 1024
 
