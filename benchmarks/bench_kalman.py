@@ -21,16 +21,20 @@ Printed, each with the load average:
   covariances) at ``--tracks``, as the largest relative difference of a track's state and
   covariance, and with FilterPy and simdkalman;
 * the first call's cost in a fresh process: import, compilation with an empty numba cache,
-  and loading from the cache (``cache=True``) the second time;
+  and loading from the cache (``cache=True``) the second time, below the engine's threshold
+  (NumPy twins: nothing to compile) and above it;
 * peak traced memory of the per-track run;
 * with ``--tracker``: the share of ``kalmansfm.track``'s time spent in the filter on the
-  built-in scene with 500 detected features (this alone, then exit).
+  built-in scene with 500 detected features (this alone, then exit);
+* with ``--twins``: ms per step on the compiled kernels and on their NumPy twins (which the
+  filter runs below ``engine.COMPILED_MIN_TRACKS`` tracks) from 10 to 4096 tracks (alone, then exit).
 
 Run:
 
     python benchmarks/bench_kalman.py                  # the whole set, ~12 min on 2 cores
     python benchmarks/bench_kalman.py --quick          # 10⁵ tracks, no sweep, no first-call or memory pass
     python benchmarks/bench_kalman.py --tracker
+    python benchmarks/bench_kalman.py --twins          # the NumPy twins' extra cost per step, small sizes
 
 Peers that cannot hold the full size in memory (simdkalman stores every step's covariance) or
 are too slow (FilterPy, one Python object per track) are timed on a subsample and reported
@@ -51,6 +55,7 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
@@ -186,7 +191,10 @@ def run_numpy_reference(x0, zs, model):
 
 def run_decoupled_reference(x0, zs, model):
     """The NumPy decoupled constant-velocity path (chunked elementwise passes), which the filter ran
-    before the compiled kernels and which the tests now compare the kernels with."""
+    before the compiled kernels and which the tests now compare the kernels with (tests/reference)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from reference import decoupled as reference
+
     from kalmansfm.estimation import _decoupled
 
     q = _decoupled.axis_blocks(model.Q)[:1]
@@ -195,8 +203,8 @@ def run_decoupled_reference(x0, zs, model):
     C = np.ascontiguousarray(np.broadcast_to(_decoupled.axis_blocks(model.P0)[:1, :, None], (1, 3, x0.shape[0])))
     with Clock() as c:
         for z in zs:
-            X, C = _decoupled.predict(X, C, 1.0, q, None)
-            X, C, _ = _decoupled.update(X, C, z, r, True, np.isnan(z))
+            X, C = reference.predict(X, C, 1.0, q, None)
+            X, C, _ = reference.update(X, C, z, r, True, np.isnan(z))
     return c.seconds, X.T
 
 
@@ -238,10 +246,10 @@ from kalmansfm import KalmanFilter
 from kalmansfm.estimation import constant_velocity_2d
 t1 = time.perf_counter()
 m = constant_velocity_2d()
-F, Q = ({F}, {Q})
-zs = np.random.default_rng(0).normal(size=(2, 1000, 2))
+F, Q, N = ({F}, {Q}, {N})
+zs = np.random.default_rng(0).normal(size=(2, N, 2))
 zs[0, ::10] = np.nan
-kf = KalmanFilter(np.zeros((1000, 4)), m.P0, F, m.H, Q, m.R)
+kf = KalmanFilter(np.zeros((N, 4)), m.P0, F, m.H, Q, m.R)
 for z in zs:
     kf.predict()
     kf.update(z)
@@ -251,16 +259,61 @@ print(t1 - t0, t2 - t1)
 
 
 def first_call_costs() -> list[str]:
-    """Import time and first predict+update (1000 tracks, per-track covariances) in fresh processes."""
+    """Import time and first predict+update (per-track covariances) in fresh processes: below the engine's
+    threshold (NumPy twins, nothing compiled) and above it (compiled kernels: compiled, then loaded from the cache)."""
+    from kalmansfm.estimation.engine import COMPILED_MIN_TRACKS
+
     lines = []
     cv, coupled = ("m.F", "m.Q"), ("m.F + 0.01", "m.Q + 0.1")
-    with tempfile.TemporaryDirectory() as cache:
-        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
-        for label, (F, Q) in (("constant-velocity model (decoupled kernels)", cv), ("general dense model", coupled)):
-            for state in ("empty cache: compiles", "second process: loads the cache"):
-                out = subprocess.run([sys.executable, "-c", FIRST_CALL.format(F=F, Q=Q)], env=env, check=True,
-                                     capture_output=True, text=True).stdout.split()
-                lines.append(f"| {label} | {state} | {float(out[0]):.2f} | {float(out[1]):.2f} |")
+    for N in (COMPILED_MIN_TRACKS // 2, 100 * COMPILED_MIN_TRACKS):
+        with tempfile.TemporaryDirectory() as cache:
+            env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+            for label, (F, Q) in (("constant-velocity model (decoupled kernels)", cv), ("general dense model", coupled)):
+                for state in ("empty cache", "second process, same cache"):
+                    out = subprocess.run([sys.executable, "-c", FIRST_CALL.format(F=F, Q=Q, N=N)], env=env, check=True,
+                                         capture_output=True, text=True).stdout.split()
+                    lines.append(f"| {label} | {N:,} | {state} | {float(out[0]):.2f} | {float(out[1]):.2f} |")
+    return lines
+
+
+def twin_costs(sizes=(10, 100, 500, 1000, 2000, 4096), steps: int = 40, repeats: int = 3) -> list[str]:
+    """ms per predict + update step on the compiled kernels and on their NumPy twins, both forced, for the
+    constant-velocity form (shared R) and the tracker's pattern (prior read first, a per-track 2×2 R: general form)."""
+    from kalmansfm.estimation import engine
+
+    cv = constant_velocity_2d()
+    before = engine.COMPILED_MIN_TRACKS
+
+    def per_step(N, form, threshold):
+        engine.COMPILED_MIN_TRACKS = threshold
+        rng = np.random.default_rng(0)
+        kf = KalmanFilter(rng.normal(scale=10, size=(N, 4)), cv.P0, cv.F, cv.H, cv.Q, cv.R)
+        zs = rng.normal(size=(steps, N, 2))
+        zs[:, ::10] = np.nan
+        R = np.broadcast_to(np.array([[0.3, 0.05], [0.05, 0.2]]), (N, 2, 2)).copy()
+        best = np.inf
+        for _ in range(repeats):
+            with Clock() as c:
+                for z in zs:
+                    kf.predict()
+                    if form == "tracker":
+                        kf.x_prior, kf.P_prior
+                        kf.update(z, R=R)
+                    else:
+                        kf.update(z)
+            best = min(best, c.wall / steps)
+        return best * 1e3
+
+    lines = ["| form | tracks | compiled kernel ms/step | NumPy twin ms/step | twin − kernel |", "|---|---:|---:|---:|---:|"]
+    try:
+        for form in ("constant-velocity", "tracker"):
+            for N in sizes:
+                per_step(N, form, 0)  # compiled or loaded outside the timing
+                kernel, twin = per_step(N, form, 0), per_step(N, form, 2**62)
+                lines.append(f"| {form} | {N:,} | {kernel:.3f} | {twin:.3f} | {twin - kernel:+.3f} |")
+    finally:
+        engine.COMPILED_MIN_TRACKS = before
+    lines.append(f"(load {load()})")
     return lines
 
 
@@ -325,15 +378,19 @@ def main() -> None:
     ap.add_argument("--missing", type=float, default=0.1, help="probability a measurement row is missing")
     ap.add_argument("--sizes", default="100000,1000000,4000000", help="track counts of the size sweep")
     ap.add_argument("--threads", default="1,2", help="numba thread counts of the kalmansfm rows")
-    ap.add_argument("--repeats", type=int, default=3, help="best of this many alternating rounds")
+    ap.add_argument("--repeats", type=int, default=5, help="best of this many alternating rounds")
     ap.add_argument("--filterpy-tracks", type=int, default=500)
     ap.add_argument("--simdkalman-tracks", type=int, default=100_000)
     ap.add_argument("--dense-tracks", type=int, default=100_000, help="size of the general dense model rows")
     ap.add_argument("--quick", action="store_true", help="10⁵ tracks, no sweep, no first-call or memory pass")
     ap.add_argument("--tracker", action="store_true", help="only the tracker's filter share")
+    ap.add_argument("--twins", action="store_true", help="only the per-step cost of the NumPy twins against the kernels")
     args = ap.parse_args()
     if args.tracker:
         print(tracker_share())
+        return
+    if args.twins:
+        print("\n".join(twin_costs()))
         return
     if args.quick:
         args.tracks, args.repeats, args.sizes = min(args.tracks, 100_000), 2, ""
@@ -468,9 +525,9 @@ def main() -> None:
 
     if not args.quick:
         print()
-        print("| first predict + update, 1000 tracks, fresh process | numba cache | import kalmansfm (s) "
+        print("| first predict + update, fresh process | tracks | numba cache | import kalmansfm (s) "
               "| first step (s) |")
-        print("|---|---|---:|---:|")
+        print("|---|---:|---|---:|---:|")
         print("\n".join(first_call_costs()))
         x0, zs = make_problem(N, T, args.missing)
         peak = peak_memory(x0, zs, cv)

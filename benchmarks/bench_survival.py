@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 cv2.setNumThreads(1)
 
 from kalmansfm.io.frames import read_frames  # noqa: E402
-from kalmansfm.tracking import tracker as tracker_module  # noqa: E402
+from kalmansfm.tracking import _differential_step as differential_step_module  # noqa: E402
 from kalmansfm.tracking.detect import detect_corners  # noqa: E402
 from kalmansfm.tracking.differential import REJECTION_NAMES  # noqa: E402
 from kalmansfm.tracking.tracker import Tracker  # noqa: E402
@@ -115,27 +115,29 @@ def _last_miss_reasons(frames: list[np.ndarray], points: np.ndarray) -> tuple[np
     The tracker's steps are wrapped to read each frame's rejection codes; the tracking itself is unchanged.
     """
     codes: dict[int, list[int]] = {}
-    step, measure = tracker_module.Tracker._step_differential, tracker_module.Tracker._measure
+    matcher = differential_step_module.DifferentialMatcher
+    step, measure = matcher.step, matcher._measure
 
-    def recording_step(self, frame):
-        self._recording = True
+    def recording_step(self, frame, kf, rows):
+        self._recording_ids = rows.ids
         try:
-            return step(self, frame)
+            return step(self, frame, kf, rows)
         finally:
-            self._recording = False
+            self._recording_ids = None
 
     def recording_measure(self, *args, **kwargs):
         result = measure(self, *args, **kwargs)
-        if getattr(self, "_recording", False):
-            for track_id, code in zip(self._rows.ids.tolist(), result.rejection.tolist()):
+        ids = getattr(self, "_recording_ids", None)
+        if ids is not None:
+            for track_id, code in zip(ids.tolist(), result.rejection.tolist()):
                 codes.setdefault(track_id, []).append(code)
         return result
 
-    tracker_module.Tracker._step_differential, tracker_module.Tracker._measure = recording_step, recording_measure
+    matcher.step, matcher._measure = recording_step, recording_measure
     try:
         end, measured, _ = run_kalman(frames, points, "differential")
     finally:
-        tracker_module.Tracker._step_differential, tracker_module.Tracker._measure = step, measure
+        matcher.step, matcher._measure = step, measure
     reasons = []
     for track_id in range(len(points)):
         if measured[track_id]:

@@ -44,7 +44,7 @@ from scipy.stats import chi2  # noqa: E402
 from kalmansfm.estimation.kalman import KalmanFilter  # noqa: E402
 from kalmansfm.io.frames import read_frames  # noqa: E402
 from kalmansfm.scenes import Occluder, render_scene  # noqa: E402
-from kalmansfm.tracking import differential  # noqa: E402
+from kalmansfm.tracking import alignment, differential  # noqa: E402
 from kalmansfm.tracking.detect import detect_corners  # noqa: E402
 from kalmansfm.tracking.tracker import Tracker  # noqa: E402
 
@@ -249,8 +249,8 @@ def stage_profile(n_features: int = 500, runs: int = 3) -> str:
     points = detect_corners(frames[0], n_features, 0.001, 5.0, border_px=40)
     stages = {
         "flow, forward and back (OpenCV LK)": [(differential, "_flow")],
-        "anchor and chain alignment (numba)": [(differential, "_ALIGN")],
-        "coasting anchors' search (frame preparation + FFT search)": [(differential, "prepare_frame"), (differential, "match_templates")],
+        "anchor and chain alignment (numba)": [(differential, "align_templates")],
+        "coasting anchors' search (frame preparation + FFT search)": [(alignment, "prepare_frame"), (differential, "match_templates")],
         "Kalman predict": [(KalmanFilter, "predict")],
         "Kalman update (per-track R)": [(KalmanFilter, "update")],
     }

@@ -3,7 +3,7 @@
 The layers, bottom to top (docs/architecture.md):
 
 0. ``errors``, ``_version`` (siblings)
-1. ``_validation``
+1. ``_validation``, ``_compilation`` (siblings)
 2. ``estimation``
 3. ``tracking``, ``structure`` (siblings: neither imports the other)
 4. ``io``
@@ -33,6 +33,7 @@ LAYERS: dict[str, int] = {
     "errors": 0,
     "_version": 0,
     "_validation": 1,
+    "_compilation": 1,
     "estimation": 2,
     "tracking": 3,
     "structure": 3,

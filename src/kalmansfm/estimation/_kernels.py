@@ -5,11 +5,12 @@ Every kernel loops once over the tracks and keeps a track's numbers in registers
 cache (dense kernels) between reading its state and covariance and writing them
 back, so a step reads and writes each track's state and covariance once.  NumPy
 needs one pass over memory per expression instead, which is what these kernels
-replace.  The NumPy
-references, which the tests compare every kernel against, are
-:mod:`~kalmansfm.estimation._decoupled` (``predict`` then ``update``) for the
+replace.  The NumPy references, which the tests compare every kernel against, are
+``tests/reference/decoupled.py`` (``predict`` then ``update``) for the
 constant-velocity kernels and :func:`~kalmansfm.estimation.kalman.kalman_predict`
-then :func:`~kalmansfm.estimation.kalman.kalman_update` for the dense ones.
+then :func:`~kalmansfm.estimation.kalman.kalman_update` for the dense ones.  Every
+kernel also has a NumPy twin in :mod:`._numpy_kernels` (the same arithmetic, bit for
+bit) that runs small problems, where compiling the kernel would cost more than it saves.
 
 Storage is structure of arrays: the track index is the last (contiguous) axis of
 every per-track array, so the loop over tracks reads each row as a stream and
@@ -47,6 +48,10 @@ from contextlib import contextmanager
 import numba
 import numpy as np
 from numba import njit, prange
+
+from .._compilation import watch_compilation
+
+watch_compilation()  # one line on stderr when a kernel is compiled (not when it is loaded from the cache)
 
 # cache=True: compiled once per machine (in __pycache__ next to this file, or numba's
 # user cache directory when the package is installed read-only).

@@ -10,19 +10,24 @@ Symbols (as in every textbook and in FilterPy):
 * ``F`` state transition (n, n), ``Q`` process noise covariance (n, n)
 * ``H`` measurement matrix (m, n), ``R`` measurement noise covariance (m, m)
 * ``y`` innovation z - H x⁻, ``S`` its covariance H P⁻ Hᵀ + R, ``K`` the gain
+
+The storage behind the class (the cheapest exact form for the model, predictions fused
+into the next update, priors recomputed when read, reused buffers) is its engine,
+:mod:`kalmansfm.estimation.engine`; the arithmetic it shares with the functions here is
+in :mod:`._linalg`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 
-from ..errors import InvalidInputError, SingularCovarianceError
+from ..errors import InvalidInputError
 from .._validation import as_float_array, check_covariance, check_finite, check_shape
-from . import _decoupled, _kernels
-from ._buffers import BufferPool
+from . import _decoupled
+from ._linalg import LOG_2PI, cholesky_checked, gain_and_posterior, mat_vec, solve_lower, symmetrize, times_transposed
+from .engine import FilterEngine
 from .smoothing import FilterRun
 
 __all__ = [
@@ -33,12 +38,6 @@ __all__ = [
     "kalman_predict",
     "kalman_update",
 ]
-
-_LOG_2PI = float(np.log(2.0 * np.pi))
-
-
-def _symmetrize(P: np.ndarray) -> np.ndarray:
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
 
 
 def kalman_predict(
@@ -62,30 +61,18 @@ def kalman_predict(
     -------
     x_prior, P_prior : the predicted states and covariances (new arrays).
     """
-    x_prior = x @ F.T if F.ndim == 2 else _mat_vec(F, x)
+    x_prior = x @ F.T if F.ndim == 2 else mat_vec(F, x)
     if u is not None:
         x_prior = x_prior + u
     if F.ndim == 2 and P.ndim == 3:
         # F P Fᵀ with a shared F as two GEMMs over the whole stack: P Fᵀ, then (F P) Fᵀ where
         # F P = (P Fᵀ)ᵀ because P is symmetric.
-        FP = np.ascontiguousarray(np.swapaxes(_times_transposed(P, F), -1, -2))
-        FPF = _times_transposed(FP, F)
+        FP = np.ascontiguousarray(np.swapaxes(times_transposed(P, F), -1, -2))
+        FPF = times_transposed(FP, F)
     else:
         FPF = F @ P @ np.swapaxes(F, -1, -2)
-    P_prior = _symmetrize(FPF + Q)
+    P_prior = symmetrize(FPF + Q)
     return x_prior, P_prior
-
-
-def _times_transposed(A: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """A Mᵀ for a stack A (..., p, q) and a shared M (r, q), as one GEMM over the stack.
-
-    NumPy's stacked matmul handles a 4×4 product in ~80 ns; reshaping the stack into one
-    (.. · p, q) matrix lets BLAS do it in ~17 ns.
-    """
-    if M.ndim == 2 and A.ndim > 2:
-        A = np.ascontiguousarray(A)
-        return (A.reshape(-1, A.shape[-1]) @ M.T).reshape(*A.shape[:-1], M.shape[0])
-    return A @ np.swapaxes(M, -1, -2)
 
 
 @dataclass(frozen=True)
@@ -111,128 +98,6 @@ class UpdateResult:
     nis: np.ndarray
     log_likelihood: np.ndarray
     measured: np.ndarray
-
-
-def _cholesky_checked(S: np.ndarray, what: str) -> np.ndarray:
-    """Lower Cholesky factor of every matrix in ``S`` (..., m, m).
-
-    Small matrices (m <= 4) are factored with elementwise NumPy over the stack:
-    ``np.linalg.cholesky`` calls LAPACK once per matrix, which costs about a
-    microsecond each for a million 2x2 innovation covariances.
-    """
-    m = S.shape[-1]
-    if m > 4:
-        try:
-            return np.linalg.cholesky(S)
-        except np.linalg.LinAlgError:
-            raise _not_positive_definite(what) from None
-    L = np.zeros_like(S)
-    for j in range(m):
-        # L_jj = sqrt(S_jj - sum_k<j L_jk^2)
-        d = S[..., j, j] - np.sum(L[..., j, :j] ** 2, axis=-1)
-        if not np.all(d > 0):
-            raise _not_positive_definite(what)
-        L[..., j, j] = np.sqrt(d)
-        for i in range(j + 1, m):
-            # L_ij = (S_ij - sum_k<j L_ik L_jk) / L_jj
-            L[..., i, j] = (S[..., i, j] - np.sum(L[..., i, :j] * L[..., j, :j], axis=-1)) / L[..., j, j]
-    return L
-
-
-def _not_positive_definite(what: str) -> SingularCovarianceError:
-    return SingularCovarianceError(
-        f"{what} is not positive definite; check that R is positive definite and P has not collapsed"
-    )
-
-
-def _solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Solve L W = B for lower-triangular L (..., m, m) and B (..., m, k) by forward substitution."""
-    m = L.shape[-1]
-    if m > 4:
-        return np.linalg.solve(L, B)
-    W = np.empty(np.broadcast_shapes(L.shape[:-2], B.shape[:-2]) + B.shape[-2:], dtype=np.result_type(L, B))
-    for i in range(m):
-        # w_i = (b_i - sum_k<i L_ik w_k) / L_ii
-        acc = B[..., i, :] - np.sum(L[..., i, :i, None] * W[..., :i, :], axis=-2)
-        W[..., i, :] = acc / L[..., i, i, None]
-    return W
-
-
-def _solve_upper_transposed(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Solve Lᵀ V = B for lower-triangular L (..., m, m) by back substitution."""
-    m = L.shape[-1]
-    if m > 4:
-        return np.linalg.solve(np.swapaxes(L, -1, -2), B)
-    V = np.empty(np.broadcast_shapes(L.shape[:-2], B.shape[:-2]) + B.shape[-2:], dtype=np.result_type(L, B))
-    for i in reversed(range(m)):
-        # v_i = (b_i - sum_k>i L_ki v_k) / L_ii
-        acc = B[..., i, :] - np.sum(L[..., i + 1 :, i, None] * V[..., i + 1 :, :], axis=-2)
-        V[..., i, :] = acc / L[..., i, i, None]
-    return V
-
-
-def _mat_vec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """A v over the last axes; A (..., p, q), v (..., q)."""
-    return np.matmul(A, v[..., None])[..., 0]
-
-
-def _gain_and_posterior(
-    x: np.ndarray,
-    P: np.ndarray,
-    z: np.ndarray,
-    H: np.ndarray,
-    R: np.ndarray,
-    joseph: bool = True,
-    measured_rows: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Dense update of filters that measured every component of ``z``.
-
-    ``P``, ``H`` and ``R`` may be shared ((n, n), (m, n), (m, m)) or stacked
-    ((k, n, n), (k, m, n), (k, m, m)); the outputs broadcast accordingly.
-    ``measured_rows`` (k,) bool, if given, marks the filters that really measured:
-    the others get a zero gain, so their posterior is exactly their prior, and
-    NaN innovation statistics (their rows of ``z`` may hold anything finite).
-    """
-    stacked_P = P.ndim == 3
-    if H.ndim == 2 and stacked_P:
-        PHt = _times_transposed(P, H)  # P Hᵀ (k, n, m)
-        HP = np.ascontiguousarray(np.swapaxes(PHt, -1, -2))  # H P = (P Hᵀ)ᵀ, P symmetric
-        HPHt = _times_transposed(HP, H)
-    else:
-        HP = H @ P
-        HPHt = HP @ np.swapaxes(H, -1, -2)
-    S = _symmetrize(HPHt + R)
-    L = _cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
-    # K = P Hᵀ S⁻¹ = (S⁻¹ H P)ᵀ with S⁻¹ = L⁻ᵀ L⁻¹ (S and P are symmetric).
-    Kt = _solve_upper_transposed(L, _solve_lower(L, HP))
-    if measured_rows is not None:
-        Kt = Kt * measured_rows[:, None, None]
-    K = np.swapaxes(Kt, -1, -2)
-    y = z - (x @ H.T if H.ndim == 2 else _mat_vec(H, x))
-    # x = x⁻ + K y, written as a sum over the m components (cheaper than a stack of tiny matmuls)
-    x_post = x + np.sum(K * y[..., None, :], axis=-1)
-    if H.ndim == 2 and Kt.ndim == 3:
-        KH = _times_transposed(np.ascontiguousarray(K), H.T)
-    else:
-        KH = K @ H
-    A = np.eye(P.shape[-1], dtype=P.dtype) - KH
-    if joseph:
-        # Joseph form: P = (I - KH) P (I - KH)ᵀ + K R Kᵀ, symmetric PSD even when K is not optimal.
-        KR = _times_transposed(np.ascontiguousarray(K), R) if R.ndim == 2 else K @ R
-        P_post = _symmetrize(A @ P @ np.swapaxes(A, -1, -2) + KR @ Kt)
-    else:
-        # Simple form: P = (I - KH) P, exact only for the optimal gain.
-        P_post = _symmetrize(A @ P)
-    # yᵀ S⁻¹ y through the Cholesky factor: |L⁻¹ y|².
-    w = _solve_lower(L, y[..., None])[..., 0]
-    nis = np.sum(w * w, axis=-1)
-    log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-    log_likelihood = -0.5 * (nis + log_det + H.shape[-2] * _LOG_2PI)
-    if measured_rows is not None:
-        y = np.where(measured_rows[:, None], y, np.nan)
-        nis = np.where(measured_rows, nis, np.nan)
-        log_likelihood = np.where(measured_rows, log_likelihood, np.nan)
-    return x_post, P_post, y, S, K, nis, log_likelihood
 
 
 def _measurement_patterns(measured: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -289,7 +154,7 @@ def kalman_update(
     shared = P.ndim == 2 and R.ndim == 2 and H.ndim == 2
 
     if shared and full.all():
-        x_post, P_post, y, S, K, nis, ll = _gain_and_posterior(x, P, z, H, R, joseph)
+        x_post, P_post, y, S, K, nis, ll = gain_and_posterior(x, P, z, H, R, joseph)
         return UpdateResult(x_post, P_post, y, S, K, nis, ll, measured)
 
     # From here on every filter gets its own covariance.
@@ -301,10 +166,10 @@ def kalman_update(
         # Rows are either complete or empty: one pass over all filters with a zero gain for
         # the empty rows (no gather/scatter by pattern).
         z_filled = np.where(measured, z, 0.0) if not full.all() else z
-        x_post, P_post, y, S, K, nis, ll = _gain_and_posterior(
+        x_post, P_post, y, S, K, nis, ll = gain_and_posterior(
             x, P, z_filled, H, R, joseph, None if full.all() else full)
         return UpdateResult(x_post, P_post, y, np.broadcast_to(S, (N, m, m)), K, nis, ll, measured)
-    S = _symmetrize(H_each @ P_each @ np.swapaxes(H_each, -1, -2) + R_each)
+    S = symmetrize(H_each @ P_each @ np.swapaxes(H_each, -1, -2) + R_each)
     groups = _measurement_patterns(measured)
 
     x_post = x.copy()
@@ -317,7 +182,7 @@ def kalman_update(
         H_sub = H[cols] if H.ndim == 2 else H_each[rows][:, cols]
         R_sub = R[np.ix_(cols, cols)] if R.ndim == 2 else R_each[rows][:, cols[:, None], cols]
         P_sub = P if P.ndim == 2 else P_each[rows]
-        xs, Ps, ys, _, Ks, nis_s, ll_s = _gain_and_posterior(x[rows], P_sub, z[rows][:, cols], H_sub, R_sub, joseph)
+        xs, Ps, ys, _, Ks, nis_s, ll_s = gain_and_posterior(x[rows], P_sub, z[rows][:, cols], H_sub, R_sub, joseph)
         x_post[rows] = xs
         P_post[rows] = Ps
         y[rows[:, None], cols] = ys
@@ -380,184 +245,18 @@ def innovation_statistics(
     one = z.ndim == 2
     Z = z[:, None, :] if one else z
     Ht = np.swapaxes(H, -1, -2)
-    S = _symmetrize(H @ P_prior @ Ht + R)
-    L = _cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
-    y = Z - _mat_vec(H, x_prior)[:, None, :]
+    S = symmetrize(H @ P_prior @ Ht + R)
+    L = cholesky_checked(S, "the innovation covariance S = H P Hᵀ + R")
+    y = Z - mat_vec(H, x_prior)[:, None, :]
     # |L⁻¹ y|² for all K candidates at once: solve with the K candidates as columns.
-    w = _solve_lower(L, np.swapaxes(y, -1, -2))
+    w = solve_lower(L, np.swapaxes(y, -1, -2))
     nis = np.sum(w * w, axis=-2)
     log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-    ll = -0.5 * (nis + np.asarray(log_det)[..., None] + H.shape[-2] * _LOG_2PI)
+    ll = -0.5 * (nis + np.asarray(log_det)[..., None] + H.shape[-2] * LOG_2PI)
     S_out = np.broadcast_to(S, (x_prior.shape[0], *S.shape[-2:]))
     if one:
         return InnovationStatistics(y[:, 0], S_out, nis[:, 0], ll[:, 0])
     return InnovationStatistics(y, S_out, nis, ll)
-
-
-class _MaskedUpdate:
-    """Statistics of one compiled update of the general form, computed from the prior on access.
-
-    ``prior`` is the step's :class:`_Prior` (internal layout: x (n, N), P (n, n, N) or
-    shared (n, n)); ``Y`` (m, N) the innovations the kernel wrote (NaN where not
-    measured).  Missing components are masked as in the kernel: their rows and
-    columns of S become the identity's, so one factorisation serves every NaN pattern.
-    """
-
-    def __init__(self, prior: _Prior, Y: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
-        self._prior = prior
-        self._Y = Y
-        self._H = H
-        self._R = R
-        self._stats: dict[str, np.ndarray] | None = None
-
-    @property
-    def y(self) -> np.ndarray:
-        return self._Y.T
-
-    @property
-    def measured(self) -> np.ndarray:
-        return ~np.isnan(self._Y.T)
-
-    def _compute(self) -> dict[str, np.ndarray]:
-        if self._stats is None:
-            P = self._prior.get()[1]
-            if P.ndim == 3:
-                P = np.moveaxis(P, -1, 0)
-            self._stats = _masked_statistics(P, self.y, self._H, self._R)
-        return self._stats
-
-    S = property(lambda self: self._compute()["S"])
-    K = property(lambda self: self._compute()["K"])
-    nis = property(lambda self: self._compute()["nis"])
-    log_likelihood = property(lambda self: self._compute()["log_likelihood"])
-
-
-def _masked_statistics(P: np.ndarray, y: np.ndarray, H: np.ndarray, R: np.ndarray) -> dict[str, np.ndarray]:
-    """S, K, NIS and log-likelihood of innovations y (N, m) (NaN = not measured) under prior covariances P.
-
-    The NumPy form of the compiled update's masking: S' is S with the unmeasured rows
-    and columns replaced by the identity's, and (P Hᵀ)' has their columns set to 0, so
-    K = (P Hᵀ)' S'⁻¹ is the gain of the measured components alone (0 for the others),
-    yᵀ S'⁻¹ y over the measured components is the NIS, and log det S' = log det S of the
-    measured block.  S itself is returned for every filter, measured or not.
-    """
-    N, m = y.shape
-    seen = ~np.isnan(y)
-    HPHt = H @ P @ np.swapaxes(H, -1, -2)
-    S = np.broadcast_to(_symmetrize(HPHt + R), (N, m, m))
-    both = seen[:, :, None] & seen[:, None, :]
-    L = _cholesky_checked(np.where(both, S, np.eye(m, dtype=S.dtype)), "the innovation covariance S = H P Hᵀ + R")
-    PHt = (P @ np.swapaxes(H, -1, -2)) * seen[:, None, :]
-    K = np.swapaxes(_solve_upper_transposed(L, _solve_lower(L, np.swapaxes(PHt, -1, -2))), -1, -2)
-    w = _solve_lower(L, np.where(seen, y, 0.0)[..., None])[..., 0]
-    nis = np.sum(w * w, axis=-1)
-    log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-    count = seen.sum(axis=1)
-    ll = -0.5 * (nis + log_det + count * _LOG_2PI)
-    nothing = count == 0
-    return {"S": S, "K": K, "nis": np.where(nothing, np.nan, nis).astype(y.dtype),
-            "log_likelihood": np.where(nothing, np.nan, ll).astype(y.dtype)}
-
-
-class _Prior:
-    """A step's prior in the filter's internal layout, computed on first use from the previous posterior.
-
-    The compiled step predicts and updates in one pass without writing the prior;
-    ``compute`` (a function of the previous posterior and the transition, holding
-    no reference to the filter) recomputes it with the same arithmetic when asked.
-    """
-
-    __slots__ = ("_compute", "_value")
-
-    def __init__(self, value: tuple[np.ndarray, np.ndarray] | None = None, compute=None) -> None:
-        self._value = value
-        self._compute = compute
-
-    def get(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._value is None:
-            self._value = self._compute()
-            self._compute = None
-        return self._value
-
-    def arrays(self) -> tuple[np.ndarray, ...]:
-        return self._value if self._value is not None else ()
-
-
-def _cv_prior(X, C, dt, q, u, take) -> tuple[np.ndarray, np.ndarray]:
-    """The decoupled prior (X⁻, C⁻) of the posterior (X, C); C (B, 3) shared or (B, 3, N)."""
-    Xp = take(X.shape, X.dtype)
-    Cp = take(C.shape, C.dtype) if C.ndim == 3 else np.empty_like(C)
-    with _kernels.threads_for(X.shape[1]):
-        _kernels.cv_predict(X, C if C.ndim == 3 else C[:, :, None], dt, q, u, Xp, Cp if C.ndim == 3 else Cp[:, :, None])
-    return Xp, Cp
-
-
-def _dense_prior(x, P, F, Q, u, take) -> tuple[np.ndarray, np.ndarray]:
-    """The general form's prior (x⁻, P⁻) of the posterior (x (n, N), P (n, n) shared or (n, n, N))."""
-    xp = take(x.shape, x.dtype)
-    u = _no_input(x) if u is None else u
-    with _kernels.threads_for(x.shape[1]):
-        if P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
-            _kernels.dense_predict_states(x, _plain(F), u, xp)
-            # the shared covariance's prior as kalman_predict computes it
-            return xp, _symmetrize(F @ P @ F.T + Q)
-        if P.ndim == 2:
-            P = _per_track(P, x.shape[1])
-        Pp = take(P.shape, P.dtype)
-        _kernels.dense_predict(x, P, _stacked(F), _stacked(Q), u, xp, Pp)
-    return xp, Pp
-
-
-def _stacked(M: np.ndarray) -> np.ndarray:
-    """A model matrix as the dense kernels take it: (1, r, c) when shared, (N, r, c) as it is."""
-    return _plain(M if M.ndim == 3 else M[None])
-
-
-def _plain(a: np.ndarray) -> np.ndarray:
-    """``a`` as a C-contiguous writable array (copied only if it is not): one compiled kernel per dtype."""
-    return a if a.flags.c_contiguous and a.flags.writeable else np.array(a, order="C")
-
-
-def _no_input(x: np.ndarray) -> np.ndarray:
-    """The dense kernels' "no known input u": an (n, 0) array."""
-    return np.zeros((x.shape[0], 0), dtype=x.dtype)
-
-
-def _per_track(P: np.ndarray, N: int) -> np.ndarray:
-    """A shared (n, n) covariance as (n, n, N) structure-of-arrays copies."""
-    return np.ascontiguousarray(np.broadcast_to(P[:, :, None], (*P.shape, N)))
-
-
-def _as_complex(z: np.ndarray) -> np.ndarray:
-    """(N, 2) positions as (N,) complex x + i y, a view (the compiled loop reads them as one stream)."""
-    z = _plain(z)
-    return z.view(np.complex128 if z.dtype == np.float64 else np.complex64)[:, 0]
-
-
-def _clearly_positive_definite_blocks(P: np.ndarray) -> bool:
-    """True when every (4, 4) matrix of the stack P is exactly symmetric, has no x–y coupling and the
-    smallest eigenvalue of each of its two 2×2 blocks, at least det / trace, is above 1e-9 of the
-    matrix's largest entry (far above the rounding of an eigen-decomposition).
-
-    The tracker hands over such a stack each time tracks end; this test costs a few passes over
-    it, where ``check_covariance`` takes an eigen-decomposition per matrix.  False means "not
-    shown here", and ``check_covariance`` decides (and words the error).
-    """
-    if P.ndim != 3 or P.shape[-2:] != (4, 4) or not np.isfinite(P).all():
-        return False
-    flat = P.reshape(P.shape[0], 16)
-    if not np.array_equal(flat[:, [2, 3, 7, 1, 6, 11]], flat[:, [8, 12, 13, 4, 9, 14]]):  # Pᵀ = P
-        return False
-    blocks = _decoupled.axis_blocks(P)
-    if blocks is None:
-        return False
-    p00, p01, p11 = blocks[..., 0], blocks[..., 1], blocks[..., 2]
-    scale = np.abs(flat).max(axis=1)[:, None]
-    return bool(np.all(p00 > 0) and np.all(p00 * p11 - p01 * p01 > 1e-9 * scale * (p00 + p11)))
-
-
-def _infinite_measurement() -> InvalidInputError:
-    return InvalidInputError("z must not contain infinity (use NaN for a missing measurement)")
 
 
 class KalmanFilter:
@@ -656,19 +355,8 @@ class KalmanFilter:
         self.H = self._measurement_matrix(H)
         self.R = self._measurement_noise(R)
         P_arr = self._covariance(P)
-        # The state in one of two internal forms, the track index last (structure of arrays):
-        # decoupled constant-velocity (X (4, N), C (B, 3) shared or (B, 3, N)), or general
-        # (x (n, N), P (n, n) shared or (n, n, N)).
-        self._fast: tuple[np.ndarray, np.ndarray] | None = None
-        self._dense: tuple[np.ndarray, np.ndarray] | None = None
-        self._pending: tuple[str, tuple] | None = None  # a predict recorded, not applied yet
-        self._prior: _Prior | None = None  # the prior of the last predict (or the state before the last update)
-        self._dense_cache: dict[str, np.ndarray] = {}
-        self._last: object | None = None
-        self._last_buffers: tuple[np.ndarray, ...] = ()
-        self._pool = BufferPool()
+        self._engine = FilterEngine(x_arr, P_arr, self._model(), joseph=self.joseph)
         self._last_F = self.F
-        self._set_state(x_arr, P_arr, initial=True)
 
     # -- construction helpers -------------------------------------------------
     def _array(self, name: str, value: object) -> np.ndarray:
@@ -723,88 +411,12 @@ class KalmanFilter:
                 arr = arr[0]
             else:
                 check_shape("P", arr, (self.n_filters, n, n), "(one covariance per filter) or (n, n) shared")
-        if not _clearly_positive_definite_blocks(arr):
+        if not _decoupled.clearly_positive_definite_blocks(arr):
             check_covariance("P", arr)
         return arr
 
-    # -- the two internal forms ------------------------------------------------
-    @staticmethod
-    def _decoupled_motion(F: np.ndarray, Q: np.ndarray) -> tuple[float, np.ndarray] | None:
-        """(dt, q (2, 3)) when F is the constant-velocity transition and Q does not couple x and y."""
-        if F.ndim != 2 or Q.ndim != 2:
-            return None
-        dt = _decoupled.cv_transition_dt(F)
-        q = None if dt is None else _decoupled.axis_blocks(Q)
-        return None if q is None else (dt, q)
-
-    @staticmethod
-    def _decoupled_measurement(H: np.ndarray, R: np.ndarray) -> np.ndarray | None:
-        """r (2,) or (2, N) when H measures the position and R is diagonal, else None."""
-        if H.ndim != 2 or not _decoupled.is_position_measurement(H):
-            return None
-        r = _decoupled.diagonal_noise(R)
-        return None if r is None else (r if r.ndim == 1 else np.ascontiguousarray(r.T))
-
-    @property
-    def _state(self) -> tuple[np.ndarray, np.ndarray]:
-        return self._fast if self._fast is not None else self._dense
-
-    def _set_state(self, x: np.ndarray, P: np.ndarray, *, initial: bool = False) -> None:
-        """Store (x, P) in the decoupled form when the model allows it (and we are in it), else densely."""
-        self._dense_cache = {}
-        fits = (self._decoupled_motion(self.F, self.Q) is not None
-                and self._decoupled_measurement(self.H, self.R) is not None)
-        blocks = _decoupled.axis_blocks(P) if fits and (initial or self._fast is not None) else None
-        if blocks is not None:
-            self._fast = (np.ascontiguousarray(x.T), _decoupled.compact_covariance(blocks))
-        else:
-            self._to_dense()
-            self._dense = (np.ascontiguousarray(x.T), self._structure_of_arrays(P))
-        if initial:
-            self._prior = _Prior(self._state)
-
-    @staticmethod
-    def _structure_of_arrays(P: np.ndarray) -> np.ndarray:
-        """(N, n, n) → (n, n, N) (a new array); a shared (n, n) is copied as it is."""
-        return np.ascontiguousarray(np.moveaxis(P, 0, -1)) if P.ndim == 3 else P.copy()
-
-    def _to_dense(self) -> None:
-        """Leave the decoupled form for good (a step that couples x and y, or a general H)."""
-        if self._fast is None:
-            return
-        self._settle()
-        expand = lambda C: self._structure_of_arrays(_decoupled.dense_covariance(C, self.n_filters))  # noqa: E731
-        X, C = self._fast
-        self._dense = (X, expand(C))
-        Xp, Cp = self._prior.get()
-        self._prior = _Prior((Xp, expand(Cp)))
-        self._fast = None
-        self._dense_cache = {}
-
-    def _settle(self) -> None:
-        """Apply a recorded predict (someone reads the prior, or a second predict comes)."""
-        if self._pending is None:
-            return
-        kind, transition = self._pending
-        self._pending = None
-        state = self._state
-        prior = (_cv_prior if kind == "cv" else _dense_prior)(*state, *transition, self._pool.take)
-        self._commit(prior, _Prior(prior))
-
-    def _commit(self, state: tuple[np.ndarray, np.ndarray], prior: _Prior, last: object | None = None,
-                buffers: tuple[np.ndarray, ...] = ()) -> None:
-        """Make ``state`` current; the arrays no longer referenced directly go back to the pool."""
-        released = (*self._state, *self._prior.arrays(), *(self._last_buffers if last is not None else ()))
-        if self._fast is not None:
-            self._fast = state
-        else:
-            self._dense = state
-        self._prior = prior
-        if last is not None:
-            self._last = last
-            self._last_buffers = buffers
-        self._dense_cache = {}
-        self._pool.release(*released)
+    def _model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return self.F, self.Q, self.H, self.R
 
     # -- public state ----------------------------------------------------------
     @property
@@ -825,78 +437,54 @@ class KalmanFilter:
     @property
     def decoupled(self) -> bool:
         """True while the filter runs in the decoupled constant-velocity form."""
-        return self._fast is not None
+        return self._engine.decoupled
 
     @property
     def shared_covariance(self) -> bool:
         """True while all filters have one covariance (stored once)."""
-        return self._state[1].ndim == 2
+        return self._engine.shared_covariance
 
     def _present(self, a: np.ndarray, per_filter_ndim: int) -> np.ndarray:
         if a.ndim < per_filter_ndim:  # shared: show it per filter without copying
             a = np.broadcast_to(a, (self.n_filters, *a.shape))
         return a[0] if self._single else a
 
-    def _public_P(self, key: str, state: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """(N, n, n) view of a state's covariance (assembled once from decoupled blocks, then cached)."""
-        C = state[1]
-        if self._fast is None:
-            return self._present(np.moveaxis(C, -1, 0) if C.ndim == 3 else C, 3)
-        cached = self._dense_cache.get(key)
-        if cached is None or cached[0] is not C:
-            P = _decoupled.dense_covariance(C, self.n_filters)
-            P.flags.writeable = False
-            cached = self._dense_cache[key] = (C, P)
-        return self._present(cached[1], 3)
-
     @property
     def x(self) -> np.ndarray:
         """Current states, (N, n) (or (n,) for a single filter)."""
-        self._settle()
-        x = self._state[0].T
-        return x[0] if self._single else x
+        return self._present(self._engine.x(), 2)
 
     @x.setter
     def x(self, value: object) -> None:
         arr = np.atleast_2d(self._array("x", value))
         check_shape("x", arr, (self.n_filters, self.dim_x), "(one state per filter)")
         check_finite("x", arr)
-        self._settle()
-        state = (np.ascontiguousarray(arr.T), self._state[1])
-        if self._fast is not None:
-            self._fast = state
-        else:
-            self._dense = state
+        self._engine.set_states(arr)
 
     @property
     def P(self) -> np.ndarray:
         """Current covariances, (N, n, n) (read-only when shared or assembled from the decoupled form)."""
-        self._settle()
-        return self._public_P("P", self._state)
+        return self._present(self._engine.P(), 3)
 
     @P.setter
     def P(self, value: object) -> None:
         P = self._covariance(value)
-        self._settle()
-        self._set_state(np.ascontiguousarray(self._state[0].T), P)
+        self._engine.set_state(np.ascontiguousarray(self._engine.x()), P, self._model())
 
     @property
     def x_prior(self) -> np.ndarray:
         """States after the last ``predict``."""
-        self._settle()
-        x = self._prior.get()[0].T
-        return x[0] if self._single else x
+        return self._present(self._engine.x_prior(), 2)
 
     @property
     def P_prior(self) -> np.ndarray:
         """Covariances after the last ``predict``."""
-        self._settle()
-        return self._public_P("P_prior", self._prior.get())
+        return self._present(self._engine.P_prior(), 3)
 
     def _from_last(self, field: str, per_filter_ndim: int) -> np.ndarray:
-        if self._last is None:
+        if self._engine.last is None:
             raise AttributeError(f"{field} is available after the first update()")
-        return self._present(getattr(self._last, field), per_filter_ndim)
+        return self._present(getattr(self._engine.last, field), per_filter_ndim)
 
     @property
     def y(self) -> np.ndarray:
@@ -963,19 +551,7 @@ class KalmanFilter:
             # (n, N), the layout of the states
             offset = np.ascontiguousarray(np.broadcast_to(u_arr, (self.n_filters, n)).T)
         self._last_F = F_arr
-        self._settle()  # a predict not applied yet (two predicts in a row)
-        self._dense_cache = {}
-        if self._fast is not None:
-            parts = self._decoupled_motion(F_arr, Q_arr)
-            if parts is not None:
-                dt, q = parts
-                X, C = self._fast
-                if C.shape[0] == 1 and not np.array_equal(q[0], q[1]):
-                    self._fast = (X, np.concatenate([C, C]))  # x and y blocks part
-                self._pending = ("cv", (self.dtype.type(dt), np.ascontiguousarray(q), offset))
-                return
-            self._to_dense()
-        self._pending = ("dense", (F_arr, Q_arr, offset))
+        self._engine.predict(F_arr, Q_arr, offset)
 
     def update(self, z: object, R: object | None = None, H: object | None = None) -> None:
         """Condition every filter on its measurement.
@@ -998,101 +574,7 @@ class KalmanFilter:
             if H_arr.shape[-2] != self.dim_z:
                 raise InvalidInputError(f"H must keep the measurement dimension {self.dim_z}; got {H_arr.shape}")
         R_arr = self.R if R is None else self._measurement_noise(R)
-        if self._fast is not None:
-            r = self._decoupled_measurement(H_arr, R_arr)
-            if r is not None:
-                with _kernels.threads_for(self.n_filters):
-                    self._update_decoupled(z_arr, r)
-                return
-            self._to_dense()
-        with _kernels.threads_for(self.n_filters):
-            self._update_dense(z_arr, H_arr, R_arr)
-
-    def _update_decoupled(self, z: np.ndarray, r: np.ndarray) -> None:
-        """One compiled pass: the recorded predict (if any) and the update, decoupled form."""
-        N, dtype, take = self.n_filters, self.dtype, self._pool.take
-        X, C = self._fast
-        if self._pending is not None:
-            dt, q, u = self._pending[1]
-        else:  # update alone: the identity transition, exactly (x + 0 v = x, p + 0 = p)
-            dt, q, u = dtype.type(0.0), np.zeros((2, 3), dtype=dtype), None
-        zc = _as_complex(z)
-        if C.shape[0] == 1 and not np.array_equal(r[0], r[1]):
-            C = np.concatenate([C, C])  # the two axes' noises differ: their blocks part
-        if C.ndim == 2 and r.ndim == 1:
-            C_prior, C_post, gains = _kernels.cv_shared_blocks(C, dt, q, r, self.joseph)
-            if not np.all(np.isfinite(C_post)):
-                raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
-            Xo, Yo = take((4, N), dtype), take((2, N), dtype)
-            n_infinite, n_missing = _kernels.cv_step_shared(X, zc, dt, gains, u, Xo, Yo)
-            if n_infinite:
-                raise _infinite_measurement()
-            if n_missing == 0:
-                self._finish_decoupled((Xo, C_post), Yo, X, C, dt, q, u, r)
-                return
-        if C.ndim == 2:
-            C = _per_track(C, N)  # not everyone measured, or per-filter noise: the covariances part for good
-        r2 = r[:, None] if r.ndim == 1 else r
-        Xo, Co, Yo = take((4, N), dtype), take((C.shape[0], 3, N), dtype), take((2, N), dtype)
-        n_infinite, n_partial, n_singular = _kernels.cv_step(X, C, zc, dt, q, r2, u, self.joseph, Xo, Co, Yo)
-        if n_partial and not n_infinite:
-            # a row measured x or y alone: the two axes' histories part, two blocks from now on
-            C, Co = np.concatenate([C, C]), take((2, 3, N), dtype)
-            n_infinite, n_partial, n_singular = _kernels.cv_step(X, C, zc, dt, q, r2, u, self.joseph, Xo, Co, Yo)
-        if n_infinite:
-            raise _infinite_measurement()
-        if n_singular:
-            raise SingularCovarianceError("the innovation covariance S = H P Hᵀ + R is not positive definite")
-        self._finish_decoupled((Xo, Co), Yo, X, C, dt, q, u, r)
-
-    def _finish_decoupled(self, state, Yo, X, C, dt, q, u, r) -> None:
-        if self._pending is not None:
-            prior = _Prior(compute=partial(_cv_prior, X, C, dt, q, u, self._pool.take))
-            self._pending = None
-        else:
-            prior = _Prior((X, C))
-        stats = _decoupled.DecoupledUpdate(lambda: prior.get()[1], Yo, r, None, self.n_filters)
-        self._commit(state, prior, stats, (Yo,))
-
-    def _update_dense(self, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
-        """One compiled pass: the recorded predict (if any) and the update, general form."""
-        N, n, m, dtype, take = self.n_filters, self.dim_x, self.dim_z, self.dtype, self._pool.take
-        x, P = self._dense
-        predict = self._pending is not None
-        F, Q, u = self._pending[1] if predict else (self.F, self.Q, None)
-        z = _plain(z)
-        u_in = _no_input(x) if u is None else u
-        if P.ndim == 2 and H.ndim == 2 and R.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
-            # shared covariance: one n×n update (the NumPy reference), the states in one pass
-            P_prior = _symmetrize(F @ P @ F.T + Q) if predict else P
-            _, P_post, _, _, gain, _, _ = _gain_and_posterior(np.zeros((1, n), dtype), P_prior, np.zeros((1, m), dtype),
-                                                             H, R, self.joseph)
-            xo, yo = take((n, N), dtype), take((m, N), dtype)
-            n_infinite, n_missing = _kernels.dense_step_shared(x, z, _plain(F), u_in, _plain(H), _plain(gain),
-                                                               predict, xo, yo)
-            if n_infinite:
-                raise _infinite_measurement()
-            if n_missing == 0:
-                self._finish_dense((xo, P_post), yo, x, P, F, Q, u, H, R)
-                return
-        if P.ndim == 2:
-            P = _per_track(P, N)  # the covariances part for good
-        xo, Po, yo = take((n, N), dtype), take((n, n, N), dtype), take((m, N), dtype)
-        n_infinite, n_singular = _kernels.dense_step(x, P, z, _stacked(F), _stacked(Q), _stacked(H), _stacked(R), u_in,
-                                                     predict, self.joseph, xo, Po, yo)
-        if n_infinite:
-            raise _infinite_measurement()
-        if n_singular:
-            raise _not_positive_definite("the innovation covariance S = H P Hᵀ + R")
-        self._finish_dense((xo, Po), yo, x, P, F, Q, u, H, R)
-
-    def _finish_dense(self, state, yo, x, P, F, Q, u, H, R) -> None:
-        if self._pending is not None:
-            prior = _Prior(compute=partial(_dense_prior, x, P, F, Q, u, self._pool.take))
-            self._pending = None
-        else:
-            prior = _Prior((x, P))
-        self._commit(state, prior, _MaskedUpdate(prior, yo, H, R), (yo,))
+        self._engine.update(z_arr, H_arr, R_arr, self._model())
 
     # -- statistics from the prior, batch runs ---------------------------------------
     def innovation_statistics(
@@ -1109,10 +591,7 @@ class KalmanFilter:
                                     f"({self.n_filters}, {self.dim_z}); got {z_arr.shape}")
         H_arr = self.H if H is None else self._measurement_matrix(H)
         R_arr = self.R if R is None else self._measurement_noise(R)
-        x_prior = self.x_prior if not self._single else self.x_prior[None]
-        P_prior = self.P_prior if not self._single else self.P_prior[None]
-        if self._fast is None and self._prior.get()[1].ndim == 2:
-            P_prior = self._prior.get()[1]
+        x_prior, P_prior = self._engine.prior_for_statistics()  # (N, n) and (N, n, n) or a shared (n, n)
         return innovation_statistics(x_prior, P_prior, z_arr, H_arr, R_arr)
 
     def gating_distance(self, candidates: object, R: object | None = None) -> np.ndarray:

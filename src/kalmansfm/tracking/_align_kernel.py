@@ -1,7 +1,7 @@
 """Compiled (numba) kernel of the differential matcher's template alignment: one pass per track.
 
-The same algorithm as the NumPy reference in :mod:`kalmansfm.tracking.differential`
-(``_align_numpy``: ``_template_terms``, ``_compare`` and the bilinear
+The same algorithm as the NumPy reference in ``tests/reference/alignment.py``
+(``align_numpy``: ``template_terms``, ``compare`` and the bilinear
 ``sample_patches``), written per track: the NumPy version streams every
 (tracks × pixels) array through memory a few dozen times per Gauss–Newton step, this
 one keeps a template's 81 inner pixels, their gradients and the patch in the cache
@@ -25,10 +25,16 @@ import math
 import numpy as np
 from numba import njit
 
-# The constants are those of differential.py (passed in, one definition there).
+from .._compilation import watch_compilation
+
+watch_compilation()  # one line on stderr when the kernel is compiled (not when it is loaded from the cache)
+
+# The constants are those of alignment.py (passed in, one definition there).
+# The helpers are compiled apart and inlined by LLVM: inlining them in numba's IR (inline="always")
+# cost about 0.5 s more compilation, for the same results to the last bit and the same speed.
 
 
-@njit(cache=True, inline="always", fastmath={"reassoc", "contract", "arcp"})
+@njit(cache=True, fastmath={"reassoc", "contract", "arcp"})
 def _sample(padded, pad, size, x, y, out):
     """Bilinear size×size patch of ``padded`` centred at (x, y), as ``sample_patches`` (border repeated)."""
     height, width = padded.shape
@@ -51,9 +57,9 @@ def _sample(padded, pad, size, x, y, out):
             out[r, c] = upper + fy * (lower - upper)
 
 
-@njit(cache=True, inline="always", fastmath={"reassoc", "contract", "arcp"})
+@njit(cache=True, fastmath={"reassoc", "contract", "arcp"})
 def _fit(inner, gx, gy, centre, norm, centre_energy, well_posed_template, patch, scale_floor, quantization, flat, residual, result):
-    """Compare one template (its terms) with the inner pixels of ``patch``; see ``_compare``.
+    """Compare one template (its terms) with the inner pixels of ``patch``; see ``compare`` in the reference.
 
     result ← [step x, step y, ncc, σ², cov xx, cov xy, cov yy, well posed]."""
     w = patch.shape[0]
@@ -189,7 +195,9 @@ def align_batch(padded, pad, templates, starts, centre, iterations, max_shift, s
             for a in range(2):
                 for b in range(2):
                     covariances[i, a, b] = np.nan
-            patches[i, :, :] = np.nan
+            for r in range(w):
+                for c in range(w):
+                    patches[i, r, c] = np.nan
             continue
         # Gauss–Newton steps from the start; an alignment that runs away keeps the start.
         x, y = x0, y0
@@ -213,4 +221,6 @@ def align_batch(padded, pad, templates, starts, centre, iterations, max_shift, s
         covariances[i, 0, 1] = result[5]
         covariances[i, 1, 0] = result[5]
         covariances[i, 1, 1] = result[6]
-        patches[i] = patch
+        for r in range(w):  # element by element: a whole-array assignment costs seconds of compilation
+            for c in range(w):
+                patches[i, r, c] = patch[r, c]

@@ -58,7 +58,7 @@ def test_compact_storage_keeps_three_numbers_per_block_and_splits_x_from_y_only_
     kf = KalmanFilter(np.zeros((N, 4)), m.P0, m.F, m.H, m.Q, m.R)
     kf.predict()
     kf.update(np.zeros((N, 2)))
-    assert kf.shared_covariance and kf._fast[1].shape == (1, 3)
+    assert kf.shared_covariance and kf._engine.state[1].shape == (1, 3)
     S = m.H @ (m.F @ m.P0 @ m.F.T + m.Q) @ m.H.T + m.R
     np.testing.assert_allclose(kf.S, np.broadcast_to(S, (N, 2, 2)), rtol=1e-14)
     np.testing.assert_allclose(kf.nis, 0.0, atol=0)  # measured exactly at the prediction
@@ -66,12 +66,12 @@ def test_compact_storage_keeps_three_numbers_per_block_and_splits_x_from_y_only_
     z[::3] = np.nan
     kf.predict()
     kf.update(z)
-    assert kf._fast[1].shape == (1, 3, N)  # per track, x and y blocks identical
+    assert kf._engine.state[1].shape == (1, 3, N)  # per track, x and y blocks identical
     assert kf.P.shape == (N, 4, 4) and not kf.P.flags.writeable
     z[1, 0] = np.nan
     kf.predict()
     kf.update(z)
-    assert kf._fast[1].shape == (2, 3, N)  # a partial row: x and y histories differ now
+    assert kf._engine.state[1].shape == (2, 3, N)  # a partial row: x and y histories differ now
     assert kf.P[1, 0, 0] > kf.P[1, 1, 1]
 
 

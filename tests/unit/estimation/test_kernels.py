@@ -1,6 +1,8 @@
-"""The compiled kernels behind KalmanFilter: float32 arithmetic, fused predict, storage reuse, threads, errors.
+"""The kernels behind KalmanFilter: float32 arithmetic, fused predict, storage reuse, threads, errors.
 
-The kernels' agreement with the NumPy references over random problems is in
+The filter runs compiled kernels, or their NumPy twins below ``engine.COMPILED_MIN_TRACKS``
+tracks; the tests that take ``kernel_path`` run on both.  The kernels' agreement with the
+NumPy references, and the twins' with the kernels, over random problems is in
 ``tests/property/test_kalman_kernels_property.py``.
 """
 
@@ -11,8 +13,9 @@ import numpy as np
 import pytest
 
 from kalmansfm import InvalidInputError, KalmanFilter, SingularCovarianceError
-from kalmansfm.estimation import _decoupled, _kernels
+from kalmansfm.estimation import _kernels, _numpy_kernels, engine
 from kalmansfm.estimation import constant_velocity_2d
+from reference import decoupled as reference
 
 CV = constant_velocity_2d()
 COUPLED_Q = CV.Q + np.array([[0, 2.0, 0, 0], [2.0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]])  # x–y coupling: general form
@@ -24,7 +27,15 @@ def _measurements(rng, T, N, p_missing=0.2):
     return zs
 
 
-def test_float32_is_computed_in_float32_to_the_last_bit():
+# Compiling the float32 variants of the kernels takes seconds per kernel on a fresh machine: the
+# compiled-path float32 tests are slow ones; the NumPy twins (the same bits, compared with the
+# kernels in float64 by default and in float32 in the slow run) keep float32 in the default run.
+COMPILED_SLOW = pytest.param("compiled", marks=pytest.mark.slow)
+
+
+@pytest.mark.parametrize("kernels", [pytest.param(_kernels, marks=pytest.mark.slow, id="compiled"),
+                                     pytest.param(_numpy_kernels, id="numpy")])
+def test_float32_is_computed_in_float32_to_the_last_bit(kernels):
     """The float32 step equals the NumPy reference run in float32 bit for bit; a float64 computation rounded
     to float32 would differ from it in the last bits."""
     rng = np.random.default_rng(0)
@@ -37,21 +48,22 @@ def test_float32_is_computed_in_float32_to_the_last_bit():
     q = np.array([[16, 0, 4]] * 2, np.float32)
     r = np.array([[4], [4]], np.float32)
     Xo, Co, Yo = np.empty_like(X), np.empty_like(C), np.empty((2, N), np.float32)
-    assert _kernels.cv_step(X, C, z.view(np.complex64)[:, 0], np.float32(1), q, r, None, True, Xo, Co, Yo) == (0, 0, 0)
-    Xp, Cp = _decoupled.predict(X, C, np.float32(1), q[:1], None)
-    Xr, Cr, _ = _decoupled.update(Xp, Cp, z, r[:, 0], True, np.isnan(z))
+    assert kernels.cv_step(X, C, z.view(np.complex64)[:, 0], np.float32(1), q, r, None, True, Xo, Co, Yo) == (0, 0, 0)
+    Xp, Cp = reference.predict(X, C, np.float32(1), q[:1], None)
+    Xr, Cr, _ = reference.update(Xp, Cp, z, r[:, 0], True, np.isnan(z))
     assert Xr.dtype == Cr.dtype == np.float32
     np.testing.assert_array_equal(Xo, Xr)
     np.testing.assert_array_equal(Co, Cr)
     # the same step in float64, rounded: not the float32 answer
     X64, C64 = np.empty((4, N)), np.empty((1, 3, N))
-    _kernels.cv_step(X.astype(float), C.astype(float), z.astype(float).view(np.complex128)[:, 0], 1.0, q.astype(float),
-                     r.astype(float), None, True, X64, C64, np.empty((2, N)))
+    kernels.cv_step(X.astype(float), C.astype(float), z.astype(float).view(np.complex128)[:, 0], 1.0, q.astype(float),
+                    r.astype(float), None, True, X64, C64, np.empty((2, N)))
     assert not np.array_equal(X64.astype(np.float32), Xo)
 
 
 @pytest.mark.parametrize("Q", [CV.Q, COUPLED_Q], ids=["decoupled", "general"])
-def test_float32_filter_keeps_float32_everywhere(Q):
+@pytest.mark.parametrize("kernel_path", [COMPILED_SLOW, "numpy"], indirect=True)
+def test_float32_filter_keeps_float32_everywhere(Q, kernel_path):
     rng = np.random.default_rng(1)
     kf = KalmanFilter(rng.normal(size=(50, 4)), CV.P0, CV.F, CV.H, Q, CV.R, dtype=np.float32)
     for z in _measurements(rng, 5, 50):
@@ -59,11 +71,11 @@ def test_float32_filter_keeps_float32_everywhere(Q):
         kf.update(z)
     for name in ("x", "P", "x_prior", "P_prior", "y", "S", "K", "nis", "log_likelihood"):
         assert getattr(kf, name).dtype == np.float32, name
-    assert all(a.dtype == np.float32 for a in kf._state)
+    assert all(a.dtype == np.float32 for a in kf._engine.state)
 
 
 @pytest.mark.parametrize("Q", [CV.Q, COUPLED_Q], ids=["decoupled", "general"])
-def test_reading_the_prior_between_predict_and_update_changes_nothing(Q):
+def test_reading_the_prior_between_predict_and_update_changes_nothing(Q, kernel_path):
     """predict() is fused into update() unless the prior is read first; both give the same bits."""
     rng = np.random.default_rng(2)
     x0 = rng.normal(scale=10, size=(30, 4))
@@ -83,7 +95,7 @@ def test_reading_the_prior_between_predict_and_update_changes_nothing(Q):
         np.testing.assert_array_equal(fused.nis, settled.nis)
 
 
-def test_two_predicts_in_a_row_are_two_steps():
+def test_two_predicts_in_a_row_are_two_steps(kernel_path):
     rng = np.random.default_rng(3)
     a = KalmanFilter(rng.normal(size=(5, 4)), CV.P0, CV.F, CV.H, CV.Q, CV.R)
     b = KalmanFilter(a.x, CV.P0, CV.F, CV.H, CV.Q, CV.R)
@@ -96,7 +108,7 @@ def test_two_predicts_in_a_row_are_two_steps():
 
 
 @pytest.mark.parametrize("Q", [CV.Q, COUPLED_Q], ids=["decoupled", "general"])
-def test_arrays_handed_out_keep_their_values_and_unheld_storage_is_reused(Q):
+def test_arrays_handed_out_keep_their_values_and_unheld_storage_is_reused(Q, kernel_path):
     rng = np.random.default_rng(4)
     N = 40
     kf = KalmanFilter(rng.normal(size=(N, 4)), CV.P0, CV.F, CV.H, Q, CV.R)
@@ -117,7 +129,7 @@ def test_arrays_handed_out_keep_their_values_and_unheld_storage_is_reused(Q):
         kf.predict()
         kf.update(z)
         if t >= len(zs):
-            storage.add(id(kf._state[0]))
+            storage.add(id(kf._engine.state[0]))
     # nobody holds them now: the states cycle through four arrays (current, previous as the
     # source of the prior, and two free)
     assert len(storage) <= 4
@@ -149,7 +161,7 @@ def test_results_do_not_depend_on_the_number_of_threads():
 
 @pytest.mark.parametrize("Q", [CV.Q, COUPLED_Q], ids=["decoupled", "general"])
 @pytest.mark.parametrize("shared", [True, False])
-def test_an_infinite_measurement_is_refused_and_the_filter_is_unchanged(Q, shared):
+def test_an_infinite_measurement_is_refused_and_the_filter_is_unchanged(Q, shared, kernel_path):
     rng = np.random.default_rng(6)
     kf = KalmanFilter(rng.normal(size=(4, 4)), CV.P0, CV.F, CV.H, Q, CV.R)
     if not shared:
@@ -163,7 +175,7 @@ def test_an_infinite_measurement_is_refused_and_the_filter_is_unchanged(Q, share
     np.testing.assert_array_equal(kf.P, P)
 
 
-def test_the_kernels_report_a_singular_innovation_covariance():
+def test_the_kernels_report_a_singular_innovation_covariance(kernel_path):
     """Reachable only with zero noise, which the class refuses: the kernels count it, the caller raises."""
     N = 3
     X, z = np.zeros((4, N)), np.ones((N, 2))
@@ -178,7 +190,7 @@ def test_the_kernels_report_a_singular_innovation_covariance():
                                  np.empty((4, 4, N)), np.empty((2, N)))
     assert counts[0] == 0 and counts[1] >= N  # one failing pivot or more per track
     kf = KalmanFilter(np.zeros((N, 4)), CV.P0, CV.F, CV.H, COUPLED_Q, CV.R)
-    kf._dense = (kf._dense[0], np.zeros((4, 4, N)))  # a collapsed covariance, with R = 0 below
+    kf._engine._dense = (kf._engine._dense[0], np.zeros((4, 4, N)))  # a collapsed covariance, with R = 0 below
     kf.R = np.zeros((2, 2))
     with pytest.raises(SingularCovarianceError, match="innovation covariance"):
         kf.update(z)
@@ -209,3 +221,35 @@ def test_general_form_statistics_equal_kalman_update_with_partial_rows():
         np.testing.assert_allclose(kf.K, ref.K, rtol=1e-10, atol=1e-13)
         np.testing.assert_allclose(kf.nis, ref.nis, rtol=1e-10)
         np.testing.assert_allclose(kf.log_likelihood, ref.log_likelihood, rtol=1e-10)
+
+
+def _run(kf, steps, rng, N):
+    """predict/update steps with partial rows, per-track noise and an input; every public array after each."""
+    seen = []
+    for t in range(steps):
+        kf.predict(u=rng.normal(size=(N, 4)) if t == 2 else None)
+        z = rng.normal(scale=20.0, size=(N, 2))
+        z[rng.random(N) < 0.2] = np.nan
+        if t >= 3:
+            z[rng.random(N) < 0.1, 1] = np.nan  # rows that measure x alone: the blocks part
+        R = np.broadcast_to(np.diag(rng.uniform(1, 5, 2)), (N, 2, 2)) if t == 4 else None
+        kf.update(z, R=R)
+        seen.append([np.array(getattr(kf, name)) for name in ("x", "P", "x_prior", "P_prior", "y", "S", "K", "nis",
+                                                                 "log_likelihood")])
+    return seen
+
+
+@pytest.mark.parametrize("Q", [CV.Q, COUPLED_Q], ids=["decoupled", "general"])
+@pytest.mark.parametrize("dtype", [np.float64, pytest.param(np.float32, marks=pytest.mark.slow)])
+def test_the_numpy_twins_give_the_filter_the_kernels_bits(Q, dtype, monkeypatch):
+    """The same run on the compiled kernels and on their NumPy twins: every public array equal to the last bit."""
+    runs = []
+    for threshold in (0, 2**62):
+        monkeypatch.setattr(engine, "COMPILED_MIN_TRACKS", threshold)
+        rng = np.random.default_rng(8)
+        N = 70
+        kf = KalmanFilter(rng.normal(scale=10, size=(N, 4)), CV.P0, CV.F, CV.H, Q, CV.R, dtype=dtype)
+        runs.append(_run(kf, 7, rng, N))
+    for compiled, twin in zip(*runs):
+        for a, b in zip(compiled, twin):
+            np.testing.assert_array_equal(a, b)

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 
 from kalmansfm.errors import InvalidInputError, SingularCovarianceError
-from kalmansfm.estimation import _decoupled
 from kalmansfm.estimation.kalman import KalmanFilter, kalman_update
 from kalmansfm.estimation.models import constant_velocity_2d
 
@@ -111,13 +110,16 @@ def test_a_singular_innovation_covariance_raises_a_clear_error_general_path():
 
 @pytest.mark.filterwarnings("error::RuntimeWarning")  # the error alone, no NumPy warning before it
 @pytest.mark.parametrize("shared", [True, False])
-def test_a_singular_innovation_covariance_raises_a_clear_error_decoupled_path(shared):
-    # the fast path's kernel (reachable only with zero noise, which the class refuses up front)
+def test_a_singular_innovation_covariance_raises_a_clear_error_decoupled_path(shared, kernel_path):
+    """Reachable only with zero noise and a collapsed covariance, which the class refuses up front:
+    both are set behind its back, and the decoupled step (kernel or NumPy twin) reports it."""
     N = 5
-    C = np.zeros((1, 3)) if shared else np.zeros((1, 3, N))
-    missing = None if shared else np.zeros((N, 2), bool)
+    kf = KalmanFilter(np.zeros((N, 4)), MODEL.P0, MODEL.F, MODEL.H, MODEL.Q, MODEL.R)
+    X = kf._engine.state[0]
+    kf._engine._fast = (X, np.zeros((1, 3)) if shared else np.zeros((1, 3, N)))
+    kf.R = np.zeros((2, 2))
     with pytest.raises(SingularCovarianceError, match=r"S = H P Hᵀ \+ R is not positive definite"):
-        _decoupled.update(np.zeros((4, N)), C, np.ones((N, 2)), np.zeros(2), True, missing)
+        kf.update(np.ones((N, 2)))
 
 
 @pytest.mark.parametrize("path", ["general", "decoupled"])

@@ -9,7 +9,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 import kalmansfm.structure.fusion.recursive as recursive_method
-from fusion_recursive import recursive_states_numpy
+from reference.fusion_recursive import recursive_states_numpy
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus

@@ -15,12 +15,14 @@ from kalmansfm.tracking.differential import (
     OUTSIDE,
     REJECTION_NAMES,
     AnchorTemplates,
-    _template_terms,
+    DifferentialSettings,
+    TrackPredictions,
     align_templates,
     measure_differential,
     prepare_differential_frame,
     pyramid_levels,
 )
+from reference.alignment import align_numpy, template_terms
 
 
 def texture(seed=0, size=(160, 220), blur=2.0):
@@ -67,16 +69,14 @@ def test_an_alignment_that_runs_away_keeps_its_start():
     np.testing.assert_array_equal(alignment.positions, start)
 
 
-def test_anchor_bank_keeps_the_terms_of_its_templates():
+def test_anchor_bank_keeps_its_templates_through_take_replace_and_append():
     rng = np.random.default_rng(3)
     templates = rng.uniform(0, 255, (6, 11, 11)).astype(np.float32)
     new = rng.uniform(0, 255, (2, 11, 11)).astype(np.float32)
     bank = AnchorTemplates(templates).take(np.array([0, 2, 3, 5])).replace(np.array([1]), new[:1]).append(new[1:])
     expected = np.concatenate([templates[[0]], new[:1], templates[[3, 5]], new[1:]])
     np.testing.assert_array_equal(bank.templates, expected)
-    fresh = _template_terms(expected)
-    np.testing.assert_allclose(bank.terms.inverse, fresh.inverse, rtol=1e-12)
-    np.testing.assert_array_equal(bank.terms.gradients, fresh.gradients)
+    assert bank.templates.dtype == np.float32 and bank.templates.flags.c_contiguous
 
 
 def test_pyramid_depth_grows_with_the_reach():
@@ -93,9 +93,8 @@ def frames_and_anchors(step=(2.0, -1.0), seed=4):
 
 def measure(previous, current, patches, anchors, predicted, covariance=4.0, **options):
     k = len(GRID)
-    return measure_differential(
-        previous, current, GRID, patches, predicted, np.broadcast_to(np.eye(2) * covariance, (k, 2, 2)), anchors, **options
-    )
+    tracks = TrackPredictions(GRID, patches, predicted, np.broadcast_to(np.eye(2) * covariance, (k, 2, 2)), anchors, **options)
+    return measure_differential(previous, current, tracks)
 
 
 def test_a_clean_translation_is_measured_anchored_with_a_small_noise():
@@ -165,7 +164,29 @@ def test_frames_of_different_sizes_and_misshaped_inputs_are_refused():
     with pytest.raises(InvalidInputError, match="differ in size"):
         measure(previous, small, patches, anchors, GRID)
     with pytest.raises(InvalidInputError, match="one row per track"):
-        measure_differential(previous, current, GRID, patches[:3], GRID, np.zeros((len(GRID), 2, 2)), anchors)
+        TrackPredictions(GRID, patches[:3], GRID, np.zeros((len(GRID), 2, 2)), anchors)
+    with pytest.raises(InvalidInputError, match="11×11 anchors"):
+        small_anchors = AnchorTemplates(np.zeros((len(GRID), 7, 7)))
+        measure_differential(previous, current, TrackPredictions(GRID, np.zeros((len(GRID), 7, 7)), GRID,
+                                                                 np.zeros((len(GRID), 2, 2)), small_anchors))
+
+
+def test_differential_settings_take_the_trackers_values_and_check_their_own():
+    from kalmansfm.tracking import TrackerSettings
+
+    tracker = TrackerSettings(window=15, gate_probability=0.99, min_ncc=0.85, max_pyramid_level=2)
+    s = DifferentialSettings.from_tracker(tracker, rescue_ncc=0.65)
+    assert (s.window, s.gate_radius, s.min_ncc, s.max_level, s.rescue_ncc) == (15, tracker.effective_gate_radius, 0.85, 2, 0.65)
+    np.testing.assert_array_equal(np.asarray(s.fallback_noise), tracker.model.R)
+    default = DifferentialSettings()  # the tracker's defaults, defined once in TrackerSettings
+    assert (default.window, default.min_ncc, default.anchor_ncc, default.reacquire_ncc, default.forward_backward_px,
+            default.max_level) == (11, 0.8, 0.97, 0.9, 1.0, 3)
+    assert default.gate_radius == TrackerSettings().effective_gate_radius and default.fallback_noise is None
+    for bad, message in ((dict(window=10), "window must be an odd integer"), (dict(min_ncc=0.0), "min_ncc must be"),
+                         (dict(fallback_noise=((1.0, 2.0), (2.0, 1.0))), "fallback_noise must be a symmetric positive"),
+                         (dict(max_level=-1), "max_level must be")):
+        with pytest.raises(InvalidInputError, match=message):
+            DifferentialSettings(**bad)
 
 
 def test_settings_check_the_differential_options():
@@ -199,7 +220,7 @@ def test_frames_in_another_grey_range_are_tracked_as_well(scale):
 
 @pytest.mark.parametrize("iterations", [0, 1, 3])
 def test_the_compiled_alignment_matches_its_numpy_reference(iterations):
-    from kalmansfm.tracking.differential import _align_compiled, _align_numpy
+    from kalmansfm.tracking.alignment import _align_compiled
 
     rng = np.random.default_rng(6)
     base = texture(7)
@@ -210,7 +231,7 @@ def test_the_compiled_alignment_matches_its_numpy_reference(iterations):
     bank.templates[3] = 50.0  # a flat template: no step, NaN covariance
     start = points + rng.uniform(-1.0, 1.0, points.shape)
     compiled = _align_compiled(frame, bank, start, iterations, 1.5)
-    reference = _align_numpy(frame, AnchorTemplates(bank.templates), start, iterations, 1.5)
+    reference = align_numpy(frame, AnchorTemplates(bank.templates), start, iterations, 1.5)
     np.testing.assert_array_equal(compiled.converged, reference.converged)
     for name, tolerance in (("positions", 1e-4), ("ncc", 1e-5), ("covariances", 1e-5), ("min_eigenvalue", 1e-4),
                             ("residual_variance", 1e-3), ("patches", 1e-3)):
@@ -219,7 +240,7 @@ def test_the_compiled_alignment_matches_its_numpy_reference(iterations):
 
 def test_one_well_posedness_test_for_the_numpy_paths_and_the_compiled_kernel():
     """matching.well_posed_2x2 decides for the NumPy reference; the kernel's inline copy agrees."""
-    from kalmansfm.tracking.differential import _align_compiled, _align_numpy
+    from kalmansfm.tracking.alignment import _align_compiled
     from kalmansfm.tracking.matching import well_posed_2x2
 
     r, c = np.mgrid[0:11, 0:11].astype(np.float32)
@@ -232,7 +253,7 @@ def test_one_well_posedness_test_for_the_numpy_paths_and_the_compiled_kernel():
         100.0 * ((r > 5) & (c > 5)),  # corner: well posed
         rng.uniform(0, 255, (11, 11)),  # texture: well posed
     ]).astype(np.float32)
-    terms = _template_terms(templates)
+    terms = template_terms(templates)
     g = terms.gradients.astype(np.float64)
     det, expected = well_posed_2x2((g[:, 0] ** 2).sum(1), (g[:, 0] * g[:, 1]).sum(1), (g[:, 1] ** 2).sum(1))
     assert expected.tolist() == [False, False, False, False, True, True]
@@ -245,5 +266,5 @@ def test_one_well_posedness_test_for_the_numpy_paths_and_the_compiled_kernel():
         frame = prepare_differential_frame(image, 11)
         bank = AnchorTemplates(templates[k:k + 1])
         compiled = _align_compiled(frame, bank, points[k:k + 1], 2, 1.5)
-        reference = _align_numpy(frame, AnchorTemplates(templates[k:k + 1]), points[k:k + 1], 2, 1.5)
+        reference = align_numpy(frame, AnchorTemplates(templates[k:k + 1]), points[k:k + 1], 2, 1.5)
         assert np.isnan(compiled.covariances).all() == np.isnan(reference.covariances).all() == (not expected[k]), k

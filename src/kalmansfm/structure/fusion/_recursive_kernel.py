@@ -24,7 +24,7 @@ from numba import njit
 # The constants are those of inverse_depth (passed in, one definition there).
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _project(Q, th0, th1, th2, J):
     """Pixel (x, y) of state θ through Q, and d(x, y)/dθ into J (2, 3)."""
     u = Q[0, 0] * th0 + Q[0, 1] * th1 + Q[0, 2] * th2 + Q[0, 3]
