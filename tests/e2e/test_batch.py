@@ -10,6 +10,7 @@ import pytest
 from kalmansfm.cli.main import main
 from kalmansfm.errors import Interrupted, InvalidInputError
 from kalmansfm.io import read_summary
+from kalmansfm.io.tracks import read_tracks_npz
 from kalmansfm.pipeline.batch import BatchRow, batch_summary_csv, folder_name, process_sequence, run_batch
 from kalmansfm.scenes import render_scene, write_scene
 
@@ -43,10 +44,10 @@ def test_dask_results_equal_the_sequential_run(batch, tmp_path):
     for row, seed in zip(result.rows[:2], (1, 2)):
         sequential = process_sequence(f"scene:{seed}", str(tmp_path / f"seq{seed}"), {"html": False, "n_frames": 10})
         assert sequential.status == "ok"
-        a = np.load(f"{row.output}/tracks.npz")
-        b = np.load(tmp_path / f"seq{seed}" / "tracks.npz")
+        a = read_tracks_npz(f"{row.output}/tracks.npz")
+        b = read_tracks_npz(tmp_path / f"seq{seed}" / "tracks.npz")
         for key in ("positions", "covariances", "status", "track_ids"):
-            np.testing.assert_array_equal(a[key], b[key])
+            np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
         assert row.residual_rms_px == sequential.residual_rms_px
 
 
