@@ -160,8 +160,9 @@ def test_a_signal_to_a_real_process_while_it_writes_leaves_the_earlier_run_and_n
     while not marker.exists() and time.monotonic() < deadline and process.poll() is None:
         time.sleep(0.05)
     assert marker.exists(), process.communicate()
-    staging = _leftovers(run_folder)
-    assert len(staging) == 1 and staging[0].endswith(".tmp"), "the run should be building its staging folder by now"
+    staging = [name for name in _leftovers(run_folder) if name.endswith(".tmp")]
+    assert len(staging) == 1, "the run should be building its staging folder by now"
+    assert _leftovers(run_folder) == sorted([staging[0], staging[0][:-len(".tmp")] + ".owner"])  # and its owner marker
     assert (run_folder.parent / staging[0] / "structure.csv").exists()
     process.send_signal(sent)
     out, err = process.communicate(timeout=60)
@@ -174,7 +175,7 @@ def test_a_signal_to_a_real_process_while_it_writes_leaves_the_earlier_run_and_n
 
 def test_ctrl_c_while_the_report_is_built_leaves_the_earlier_run_whole(run_folder, monkeypatch, capsys):
     """The report is part of the run: it is built in the staging folder, before the swap."""
-    (run_folder / "report.html").write_text("<html>the earlier run's report</html>")
+    (run_folder / "report.html").write_text("<!DOCTYPE html>\n<html><body><h1>kalmansfm report</h1>the earlier run's")
     before = _snapshot(run_folder)
     monkeypatch.setattr(pipeline, "build_report", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
     code = main(["demo", "--out", str(run_folder), "--frames", "5", "--seed", "1", "--quiet"])
