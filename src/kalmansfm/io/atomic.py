@@ -72,17 +72,21 @@ _SWAP_ATTEMPTS = 3
 
 
 class _CommitLog:
-    """How many run folders this process has swapped in, and the last one."""
+    """How many results this process has put in place (run folders swapped in, files written), and the last one."""
 
     count = 0
     last: Path | None = None
+    #: Staging folders being built now: a file written into one is not a result yet.
+    building: set[Path] = set()
 
 
 def last_commit() -> tuple[int, Path | None]:
-    """(number of run folders this process has committed, the last of them).
+    """(number of results this process has put in place, the last of them).
 
-    The command line compares the count before and after a command to say truthfully,
-    after Ctrl-C, whether the new results were written.
+    A result is a run folder swapped in by :func:`output_directory` or a file written by
+    :func:`atomic_write` outside a staging folder (a report into its run folder).  The command
+    line compares the count before and after a command to say truthfully, after Ctrl-C or a
+    failure to print, whether the new results were written.
 
     Examples
     --------
@@ -115,6 +119,9 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
         made = claim(final)
         write(made.temporary)
         os.replace(made.temporary, final)
+        if Path(os.path.abspath(final.parent)) not in _CommitLog.building:
+            _CommitLog.count += 1
+            _CommitLog.last = final
     except OSError as exc:
         raise _naming(exc, {} if made is None else {made.temporary: final}, final) from None
     finally:
@@ -543,6 +550,7 @@ def output_directory(
         check_output_directory(path, inputs=inputs)
     made, created = _start(folder, target)
     out = OutputDirectory(folder, made.temporary, target, made)
+    _CommitLog.building.add(Path(os.path.abspath(made.temporary)))
     try:
         yield out
         out.commit()
@@ -550,6 +558,7 @@ def output_directory(
         last = folder / out.last_file if out.last_file else folder
         raise _naming(exc, {made.temporary: folder}, last) from None
     finally:
+        _CommitLog.building.discard(Path(os.path.abspath(made.temporary)))
         release(made, aside=False)  # the swap has removed the earlier run, or put it back
         if not out.committed:
             _remove_created(created)
