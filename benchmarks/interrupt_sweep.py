@@ -213,7 +213,7 @@ def parents_case(work: Path, k: int, wall: float, rng: random.Random) -> tuple[s
     time.sleep(rng.uniform(0.5 * wall, 1.2 * wall))
     first.send_signal(signal.SIGTERM)
     code_b, err_b = finish(first)
-    code_a, err_a = finish(second)
+    code_a, _ = finish(second)
     if code_a is None or code_b is None:
         return "HANG", "a run did not end"
     if code_a != 0 or run_of(root / "new" / "a") != "seed 2":
@@ -263,6 +263,8 @@ def main() -> None:
         outcome, why, code, err = signal_case(work, base, earlier, f"signal-{k}", sent, moment)
         last = err.strip().splitlines()[-1] if err.strip() else ""
         record(f"{sent.name:7s} at {moment:6.2f} s  exit {code}", outcome, why, last)
+        if outcome != "new" and outcome != "earlier":
+            print("    stderr:", repr(err[-1500:]))
     for k in range(args.concurrent):
         outcome, why = concurrent_case(work, base, earlier, k, wall, rng)
         record(f"two runs, {'a signal' if k % 2 else 'no signal'} ({k})", outcome, why, "")

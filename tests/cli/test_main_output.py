@@ -16,6 +16,7 @@ import sys
 import warnings
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -167,3 +168,24 @@ def test_memory_and_overflow_are_one_line_naming_the_option_that_explains_them(m
     _command(monkeypatch, lambda args: (_ for _ in ()).throw(raised))
     assert main(argv) == code
     assert capsys.readouterr().err.splitlines() == [line]
+
+
+C_LOCALE = {**ENV, "LC_ALL": "C", "PYTHONCOERCECLOCALE": "0", "PYTHONUTF8": "0"}  # file names read as ASCII
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="the C locale is POSIX")
+def test_a_non_ascii_path_under_the_c_locale_is_tracked_and_printed_as_typed(tmp_path):
+    """Issue 30: OpenCV crashed (SIGSEGV, exit 139) on the escaped name Python makes of 'dé' under LC_ALL=C."""
+    frames = tmp_path / "dé"
+    frames.mkdir()
+    for k in range(3):
+        (frames / f"f{k}.png").write_bytes(cv2.imencode(".png", np.full((40, 50), 60 * k + 20, np.uint8))[1].tobytes())
+    result = subprocess.run([sys.executable, "-m", "kalmansfm", "track", "dé", "--out", "tö", "--quiet"],
+                            cwd=tmp_path, capture_output=True, env=C_LOCALE, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.rstrip().endswith("results in tö".encode()) and result.stderr == b""
+    assert (tmp_path / "tö" / "summary.json").exists()
+    missing = subprocess.run([sys.executable, "-m", "kalmansfm", "reconstruct", "ä.csv", "--out", "x"], cwd=tmp_path,
+                             capture_output=True, env=C_LOCALE, timeout=120)
+    assert missing.returncode == 2
+    assert missing.stderr == "kalmansfm reconstruct: error: ä.csv: no such file\n".encode()  # the name as typed

@@ -80,7 +80,7 @@ def test_the_loop_drops_only_the_waits_a_closed_client_ended(capsys):
     loop.default_exception_handler = lambda context: reported.append(context["message"])  # type: ignore[method-assign]
 
     class Client:
-        class loop:  # noqa: N801 - the shape of distributed's IOLoop wrapper
+        class loop:  # the shape of distributed's IOLoop wrapper
             asyncio_loop = None
 
     client = Client()

@@ -258,3 +258,36 @@ def test_sigterm_during_track_cleans_up_like_ctrl_c(tmp_path):
         assert process.returncode == 143, err
         assert err.rstrip("\n").splitlines()[-1] == "kalmansfm track: terminated; earlier results were left as they were"
         assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+
+SWALLOWED = """
+import signal, sys, time, weakref
+from kalmansfm.cli import main, tables
+
+class Thing:
+    pass
+
+def body(args):
+    thing = Thing()
+    # the handler runs inside the weakref callback, where an exception cannot propagate
+    keep = weakref.ref(thing, lambda ref: signal.raise_signal(signal.SIGTERM))
+    del thing
+    for _ in range(200):  # ordinary code, where the interrupt sent again lands
+        time.sleep(0.05)
+    print("the command ran on to its end")
+    return 0
+
+tables.run = body
+sys.argv = ["kalmansfm", "tables", "--task", "1"]
+main.run()
+"""
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGTERM to a process is POSIX")
+def test_an_interrupt_swallowed_by_a_finalizer_is_delivered_again(tmp_path):
+    """Issue 30's sweep: 'Exception ignored in: <function WeakKeyDictionary…>' with a traceback, then exit 0."""
+    result = subprocess.run([sys.executable, "-c", SWALLOWED], capture_output=True, text=True, timeout=60,
+                            env={**os.environ, "PYTHONPATH": str(SRC)})
+    assert result.returncode == 143, result.stderr
+    assert result.stderr.splitlines() == ["kalmansfm tables: terminated; earlier results were left as they were"]
+    assert "ran on to its end" not in result.stdout

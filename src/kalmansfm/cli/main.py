@@ -215,17 +215,28 @@ def _out_of_range(prog: str, exc: BaseException, suspects: list[str]) -> str | N
 
 
 def _not_utf8(prog: str, exc: BaseException) -> str | None:
-    """The line for a file name that is not UTF-8 which could not be written into a file, or None."""
+    """The line for a file name that could not be written as text into a result file, or None."""
     if not isinstance(exc, UnicodeEncodeError) or not any("\udc80" <= c <= "\udcff" for c in exc.object):
         return None
-    shown = exc.object[max(exc.start - 30, 0):exc.end + 10].encode("ascii", "backslashreplace").decode()
-    return (f"{prog}: error: a file or folder name is not valid UTF-8 text (…{shown}…) and cannot be written into "
-            "the results; rename it")
+    start = exc.start
+    while start > 0 and exc.object[start - 1] not in "\n\"'<>=/ ":
+        start -= 1
+    end = exc.end
+    while end < len(exc.object) and exc.object[end] not in "\n\"'<>=/ ":
+        end += 1
+    shown = exc.object[start:end]
+    if sys.getfilesystemencoding().lower() in ("ascii", "ansi_x3.4-1968"):
+        why = ("Python reads file names as ASCII under the C locale; run with PYTHONUTF8=1 or LANG=C.UTF-8, or "
+               "rename it")
+    else:
+        why = "it is not valid UTF-8; rename it"
+    return f"{prog}: error: the name {shown} cannot be written into the results as text ({why})"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line with ``argv`` (default ``sys.argv[1:]``) and return the exit code."""
     prog, debug, commits_before = "kalmansfm", False, _commits()[0]
+    _Stopping.reporting = False
     held: list[str] = []
     suspects: list[str] = []
     stdout = sys.stdout
@@ -266,6 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _say(f"{prog}: error: {where}{exc.strerror or exc}")
         return 2
     except KeyboardInterrupt as exc:
+        _Stopping.reporting = True
         _close_progress_bars()
         number = exc.signal_number if isinstance(exc, Interrupted) else signal.SIGINT
         word = "terminated" if number == signal.SIGTERM else "interrupted"
@@ -275,6 +287,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if _signals_received:
             # A Ctrl-C that lands while a compiled module initialises comes out of the import as
             # that module's own error (NumPy: "ImportError: initialization failed"): an interrupt.
+            _Stopping.reporting = True
             _close_progress_bars()
             number = _signals_received[-1]
             word = "terminated" if number == signal.SIGTERM else "interrupted"
@@ -298,23 +311,58 @@ def main(argv: Sequence[str] | None = None) -> int:
 _signals_received: list[int] = []
 
 
+class _Stopping:
+    """Whether :func:`main` is already saying how the command stopped: a further signal changes nothing then."""
+
+    reporting = False
+
+
 def _terminate(signum: int, frame: object) -> None:
     """SIGTERM handler: stop the way Ctrl-C does, so that staged files are removed on the way out."""
     _signals_received.append(signum)
-    raise Interrupted(signal_number=signum)
+    if not _Stopping.reporting:
+        raise Interrupted(signal_number=signum)
 
 
 def _interrupt(signum: int, frame: object) -> None:
     """SIGINT handler: Python's own (KeyboardInterrupt), remembering that the signal came."""
     _signals_received.append(signum)
-    raise KeyboardInterrupt
+    if not _Stopping.reporting:
+        raise KeyboardInterrupt
+
+
+def _interrupt_again(unraisable: Any) -> None:
+    """``sys.unraisablehook``: an interrupt that a finalizer swallowed is sent again instead of printed.
+
+    A signal handler raises wherever the interpreter happens to be; inside a weakref callback or
+    a ``__del__`` the exception cannot propagate, so Python printed "Exception ignored in: …" with
+    a traceback and the command ran on to exit 0 (issue 30's sweep).  The same signal is raised
+    again from a timer thread a moment later, when the main thread is most likely back in
+    ordinary code; it is delivered like the first.
+    """
+    exception = unraisable.exc_value
+    if not isinstance(exception, KeyboardInterrupt):
+        sys.__unraisablehook__(unraisable)
+        return
+    if _Stopping.reporting:
+        return
+    import threading
+
+    number = exception.signal_number if isinstance(exception, Interrupted) else signal.SIGINT
+    timer = threading.Timer(0.05, signal.raise_signal, (int(number),))
+    timer.daemon = True
+    timer.start()
 
 
 def run() -> None:
     """Console-script entry point: signal handling first, then the command."""
+    reconfigure = getattr(sys.stderr, "reconfigure", None)
+    if reconfigure is not None:  # our lines name files as the user typed them, in any locale
+        reconfigure(errors="kalmansfm-terminal")
     signal.signal(signal.SIGTERM, _terminate)
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when Ctrl-C is ignored
         signal.signal(signal.SIGINT, _interrupt)
+    sys.unraisablehook = _interrupt_again
     code = main()
     # The command is over and has said what happened: a Ctrl-C or SIGTERM while Python shuts down
     # (a tenth of a second with NumPy, OpenCV and Matplotlib loaded) must not end the process by

@@ -45,6 +45,7 @@ import threading
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path, PurePosixPath
+from typing import ClassVar
 
 from ..errors import InvalidInputError
 from ._claims import Claim, claim, release, sweep, temporary_state
@@ -77,7 +78,7 @@ class _CommitLog:
     count = 0
     last: Path | None = None
     #: Staging folders being built now: a file written into one is not a result yet.
-    building: set[Path] = set()
+    building: ClassVar[set[Path]] = set()
 
 
 def last_commit() -> tuple[int, Path | None]:
@@ -116,7 +117,8 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
     sweep(final)
     made = None
     try:
-        made = claim(final)
+        with _signals_deferred():  # the marker is either not made or known to the clean-up below
+            made = claim(final)
         write(made.temporary)
         os.replace(made.temporary, final)
         if Path(os.path.abspath(final.parent)) not in _CommitLog.building:
@@ -244,7 +246,8 @@ def _listed_files(record: dict) -> frozenset[str]:
 
 def _not_ours(folder: Path, listed: frozenset[str]) -> list[str]:
     """Every file or empty folder below ``folder`` that the run did not write (relative names, sorted)."""
-    prefixes = {"/".join(PurePosixPath(name).parts[:k]) for name in listed for k in range(1, len(PurePosixPath(name).parts))}
+    split = [PurePosixPath(name).parts for name in listed]
+    prefixes = {"/".join(parts[:k]) for parts in split for k in range(1, len(parts))}  # the folders of listed files
     foreign = []
     for top, dirs, files in os.walk(folder):
         here = Path(top)
@@ -398,7 +401,10 @@ class OutputDirectory:
         return target
 
     def write_text(self, name: str, text: str) -> Path:
-        """Stage a UTF-8 text file (a file name that is not UTF-8 appears as ``\\udcff`` escapes); returns its final path."""
+        """Stage a UTF-8 text file; returns its final path.
+
+        A file name in ``text`` that is not UTF-8 is written as ``\\udcff`` escapes.
+        """
         self.file(name).write_text(text, encoding="utf-8", errors="backslashreplace")
         return self.path / name
 
@@ -504,7 +510,8 @@ def _start(folder: Path, target: Path) -> tuple[Claim, list[Path]]:
                 release(made)
             if attempt + 1 < _SWAP_ATTEMPTS:
                 continue
-            raise InvalidInputError(f"output folder {folder} is not writable (its parent folder keeps vanishing)") from None
+            raise InvalidInputError(
+                f"output folder {folder} is not writable (its parent folder keeps vanishing)") from None
         except OSError as exc:
             if made is not None:
                 release(made)
@@ -548,17 +555,23 @@ def output_directory(
     target = _target(folder)
     if sweep(target):  # an earlier run put back: it is checked like any other
         check_output_directory(path, inputs=inputs)
-    made, created = _start(folder, target)
-    out = OutputDirectory(folder, made.temporary, target, made)
-    _CommitLog.building.add(Path(os.path.abspath(made.temporary)))
+    made: Claim | None = None
+    created: list[Path] = []
+    out: OutputDirectory | None = None
     try:
+        # a Ctrl-C while the marker and the staging folder are made waits until the clean-up below knows them
+        with _signals_deferred():
+            made, created = _start(folder, target)
+            out = OutputDirectory(folder, made.temporary, target, made)
+            _CommitLog.building.add(Path(os.path.abspath(made.temporary)))
         yield out
         out.commit()
     except OSError as exc:
-        last = folder / out.last_file if out.last_file else folder
-        raise _naming(exc, {made.temporary: folder}, last) from None
+        last = folder / out.last_file if out is not None and out.last_file else folder
+        raise _naming(exc, {} if made is None else {made.temporary: folder}, last) from None
     finally:
-        _CommitLog.building.discard(Path(os.path.abspath(made.temporary)))
-        release(made, aside=False)  # the swap has removed the earlier run, or put it back
-        if not out.committed:
+        if made is not None:
+            _CommitLog.building.discard(Path(os.path.abspath(made.temporary)))
+            release(made, aside=False)  # the swap has removed the earlier run, or put it back
+        if out is None or not out.committed:
             _remove_created(created)

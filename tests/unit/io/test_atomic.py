@@ -400,3 +400,23 @@ def test_a_file_name_that_is_not_utf8_is_written_as_escapes(tmp_path):
     with output_directory(tmp_path / "run") as out:
         out.write_text("structure.ply", "comment made from " + os.fsdecode(b"clip\xff.avi") + "\n")
     assert (tmp_path / "run" / "structure.ply").read_text(encoding="utf-8") == "comment made from clip\\udcff.avi\n"
+
+
+@pytest.mark.parametrize("writer", ["output_directory", "atomic_write"])
+def test_ctrl_c_while_the_owner_marker_is_made_leaves_nothing(tmp_path, monkeypatch, writer):
+    """Issue 30's sweep: a SIGINT between the marker and the clean-up left the marker and the staging folder."""
+    real_claim = atomic.claim
+
+    def claim_then_ctrl_c(final):
+        made = real_claim(final)
+        signal.raise_signal(signal.SIGINT)  # Python's handler runs at once: KeyboardInterrupt, unless held back
+        return made
+
+    monkeypatch.setattr(atomic, "claim", claim_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        if writer == "output_directory":
+            with output_directory(tmp_path / "new" / "run") as out:
+                out.write_text("a.csv", "never written")
+        else:
+            atomic_write(tmp_path / "report.html", lambda p: p.write_text("never written"))
+    assert _entries(tmp_path) == []
