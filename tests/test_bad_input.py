@@ -152,6 +152,17 @@ CASES = [
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {d}/not_a_run", "not_a_run is not empty and holds no kalmansfm run"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {d}/run_with_notes", "holds notes.txt, which its kalmansfm run did not write"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --scheduler notaurl", "cannot use the Dask scheduler 'notaurl'"),
+    # issue 30: a pipe, a device or a link loop given as a file; values too large to compute with
+    ("fuse", "{d}/tracks_ok.csv --cameras /dev/zero --out {out}", "/dev/zero is a character device, not a file (given as --cameras)"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/fifo.csv --out {out}", "fifo.csv is a named pipe (FIFO), not a file (given as --cameras)"),
+    ("fuse", "{d}/loop.csv --cameras {d}/cams_ok.csv --out {out}", "loop.csv is a symbolic link loop (given as TRACKS)"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --pixel-std 1e300",
+     "--pixel-std 1e+300: too far from any sensible value to compute with"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {d}/only_git", "only_git is not empty and holds no kalmansfm run"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {d}/run_with_html", "holds mine.html, which its kalmansfm run did not write"),
+    ("track", "{d}/fifo.avi --out {out}", "fifo.avi is a named pipe (FIFO), not a file (given as INPUT)"),
+    ("demo", "--out {out} --input {d}/fifo.avi", "fifo.avi is a named pipe (FIFO), not a file (given as --input)"),
+    ("demo", "--out {out} --frames 100000000", "--frames 100000000 of 320x240 would need about"),
     # --- report (its output folder is the run folder itself) ----------------------------------
     ("report", "{d}/missing", "missing does not exist or is not a folder"),
     ("report", "{d}/empty", "empty/summary.json: not found"),
@@ -164,6 +175,8 @@ CASES = [
     ("report", "{d}/run_ok --name summary.json", "--name summary.json would overwrite the run's own summary.json"),
     ("report", "{d}/run_ok --name tracks.csv", "--name tracks.csv would overwrite the run's own tracks.csv"),
     ("report", "{d}/run_ok --name notes.txt", "--name must end in .html"),
+    ("report", "{d}/run_escapes", "run_escapes/summary.json: lists '../tracks_ok.csv', which is not a file of the run folder"),
+    ("report", "{d}/run_absolute", "run_absolute/summary.json: lists '/etc/hostname', which is not a file of the run folder"),
     # --- batch -------------------------------------------------------------------------------
     ("batch", "{d}/missing --out {out}", "sequence '{d}/missing' does not exist"),
     ("batch", "scene:x {d}/missing --out {out}", "none of the 2 sequences can run; the first: sequence 'scene:x'"),
@@ -192,6 +205,8 @@ CASES = [
     ("consistency", "--task 7 --runs 3 --pixel-noise -1", "--pixel-std must be finite and > 0"),
     ("consistency", "--task 7 --runs 3 --pixel-std 0", "--pixel-std must be finite and > 0"),
     ("consistency", "--task 7 --runs 3 --focal nan", "--focal must be finite and > 0"),
+    ("consistency", "--task 2 --runs 10000000000", "--runs must be an integer in 2 … 100000; got 10000000000 (about 2 days"),
+    ("consistency", "--task 7 --runs 10000000000", "--runs must be an integer in 2 … 100000; got 10000000000 (about"),
     # --- scene -------------------------------------------------------------------------------
     ("scene", "--out {out} --frames 1", "--frames must be an integer >= 3; got 1"),
     ("scene", "--out {out} --size 0x10", "--size must be (width, height) with integers in 32 … 4096; got (0, 10)"),
@@ -204,15 +219,16 @@ CASES = [
     ("scene", "--out {out} --occluder 2,-1,0", "--occluder TRACK,FIRST,N must hide at least one frame within 0 … 29; got 0 frame(s) from frame -1"),
     ("scene", "--out {out} --occluder-marker", "--occluder-marker needs --occluder"),
     ("scene", "--out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
+    ("scene", "--out {out} --frames 100000000", "--frames 100000000 of 320x240 would need about"),
 ]
 
 
 def _params():
-    for command, arguments, fragment in CASES:
+    for command, arguments, fragment, *marks in CASES:
         name = f"{command} {arguments}".replace("{d}/", "").replace("{out}", "OUT")
         variants = ["new", "existing"] if "{out}" in arguments else ["none"]
         for variant in variants:
-            yield pytest.param(command, arguments, fragment, variant, id=f"{name} [{variant}]")
+            yield pytest.param(command, arguments, fragment, variant, id=f"{name} [{variant}]", marks=marks)
 
 
 def _png(image: np.ndarray) -> bytes:
@@ -254,6 +270,15 @@ def bad_inputs(tmp_path_factory) -> Path:
     rng = np.random.default_rng(0)
     ok_rows = [f"{f},{p},{x:.3f},{y:.3f}" for f in range(4) for p in range(6) for x, y in [rng.uniform(0, 100, 2)]]
     (d / "tracks_ok.csv").write_text("frame,track_id,x,y\n" + "\n".join(ok_rows) + "\n")
+    # a perspective sequence (40 points, 5 views) that reconstruct --camera perspective can try
+    points, rows = rng.uniform(-1, 1, (40, 3)), []
+    for f in range(5):
+        a = 0.1 * f
+        camera = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        seen = points @ camera.T + [0, 0, 5]
+        xy = 500 * seen[:, :2] / seen[:, 2:] + 320
+        rows += [f"{f},{p},{xy[p, 0]:.3f},{xy[p, 1]:.3f}" for p in range(40)]
+    (d / "perspective.csv").write_text("frame,track_id,x,y\n" + "\n".join(rows) + "\n")
     (d / "K_singular.csv").write_text("frame,fx,fy,cx,cy,skew\n0,500,0,50,50,0\n")
     (d / "K_two_frames.csv").write_text("frame,fx,fy,cx,cy,skew\n0,500,500,50,50,0\n1,500,500,50,50,0\n")
     (d / "tracks_no_y.csv").write_text("frame,track_id,x\n0,1,2\n")
@@ -302,6 +327,16 @@ def bad_inputs(tmp_path_factory) -> Path:
     folder("run_bad_frame/frames", {"frame_000.png": large[1][: len(large[1]) // 2]})
     folder("run_ok", {"summary.json": summary("tracks.csv"), "tracks.csv": b"frame,track_id,x,y\n0,1,2,3\n"})
     folder("not_a_run", {"notes.txt": b"the user's own file\n"})
+    folder("only_git", {})
+    folder("only_git/.git", {"HEAD": b"ref: refs/heads/main\n"})
+    folder("run_with_html", {"summary.json": summary("tracks.csv"), "tracks.csv": b"frame,track_id,x,y\n0,1,2,3\n",
+                             "mine.html": b"<p>the user's own page</p>\n"})
+    folder("run_escapes", {"summary.json": summary("../tracks_ok.csv")})
+    folder("run_absolute", {"summary.json": summary("/etc/hostname")})
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(d / "fifo.csv")
+        os.mkfifo(d / "fifo.avi")
+    (d / "loop.csv").symlink_to(d / "loop.csv")
     folder("run_with_notes", {"summary.json": summary("tracks.csv"), "tracks.csv": b"frame,track_id,x,y\n0,1,2,3\n",
                               "notes.txt": b"the user's own file\n"})
     return d
@@ -370,6 +405,10 @@ def test_bad_input_is_refused_in_one_line_and_nothing_is_written(
         ("reconstruct {d}/complex.npz --out {out}", "positions must be a numeric"),  # no ComplexWarning
         ("consistency --task 2 --runs 0", "runs must be an integer >= 2; got 0"),  # no progress bar first
         ("batch scene:1 --out {out} --scheduler notaurl", "cannot use the Dask scheduler 'notaurl'"),
+        # NumPy's "overflow encountered" warnings used to come first (issue 30)
+        ("reconstruct {d}/perspective.csv --out {out} --camera perspective --focal 1e-300 --image-size 640 480 --quiet",
+         "no frame pair gives an essential matrix"),
+        ("fuse {d}/tracks_ok.csv --cameras {d}/fifo.csv --out {out}", "fifo.csv is a named pipe (FIFO)"),  # no hang
     ],
 )
 def test_a_real_process_prints_one_line_and_no_native_warnings(arguments, fragment, bad_inputs, tmp_path):

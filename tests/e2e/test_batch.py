@@ -133,9 +133,26 @@ def test_ctrl_c_during_a_batch_says_what_finished(tmp_path, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(dask.distributed, "as_completed", interrupted)
-    with pytest.raises(Interrupted, match=r"^0 of 1 sequences finished \(their run folders are in .*out; "
-                                          r"batch_summary\.csv was not written\); run the same command again"):
+    with pytest.raises(Interrupted, match=r"^[01] of 1 sequences finished \(their run folders are in .*out; "
+                                          r"batch_summary\.csv was not written\); run the same command again") as caught:
         run_batch(["scene:1"], tmp_path / "out", n_workers=1)
+    # the count is what is on disk once the cluster has stopped (the task may finish while it stops)
+    whole = [p for p in (tmp_path / "out").iterdir() if (p / "summary.json").exists()]
+    assert str(caught.value).startswith(f"{len(whole)} of 1")
+
+
+def test_ctrl_c_counts_the_run_folders_that_were_swapped_in_even_before_their_rows_came_back(tmp_path, monkeypatch):
+    """Issue 30: '0 of 2 finished' was said with 2 whole run folders on disk (their rows were not collected yet)."""
+    import dask.distributed
+
+    def finished_then_interrupted(futures):
+        dask.distributed.wait(list(futures))  # both sequences finish on the workers ...
+        raise KeyboardInterrupt               # ... and Ctrl-C comes before any row is collected
+
+    monkeypatch.setattr(dask.distributed, "as_completed", finished_then_interrupted)
+    with pytest.raises(Interrupted, match=r"^2 of 2 sequences finished"):
+        run_batch(["scene:1", "scene:2"], tmp_path / "out", n_workers=1, n_frames=5, save_frames=False)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["scene-1", "scene-2"]
 
 
 def test_the_batch_summary_spells_numbers_as_every_csv_of_the_package():

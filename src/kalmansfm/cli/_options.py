@@ -11,14 +11,28 @@ option the user typed (``--frames``) instead of the library's argument (``n_fram
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import re
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 
-from ..errors import KalmanSfmError
+from ..errors import InvalidInputError, KalmanSfmError
+from ..io.paths import path_problem
 from ..io.summary import RunSummary
 
-__all__ = ["HelpFormatter", "add_hidden_alias", "as_typed", "print_warnings"]
+__all__ = [
+    "HelpFormatter",
+    "add_hidden_alias",
+    "as_typed",
+    "check_path_arguments",
+    "command_parser",
+    "print_warnings",
+    "suspect_arguments",
+]
+
+#: A number given as an option beyond these magnitudes is suspect when a computation overflows or runs out of memory.
+_LARGEST_FLOAT, _SMALLEST_FLOAT, _LARGEST_COUNT = 1e12, 1e-12, 10**6
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -123,3 +137,91 @@ def print_warnings(summary: RunSummary) -> None:
     """
     for line in summary.warning_lines():
         print(line)
+
+
+def command_parser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
+    """The parser of the subcommand ``command`` of the full parser.
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser(prog="x")
+    >>> sub = parser.add_subparsers(dest="command")
+    >>> _ = sub.add_parser("go")
+    >>> command_parser(parser, "go").prog
+    'x go'
+    """
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return subparsers.choices[command]
+
+
+def _label(action: argparse.Action) -> str:
+    return action.option_strings[-1] if action.option_strings else str(action.metavar or action.dest)
+
+
+def _path_actions(parser: argparse.ArgumentParser) -> Iterator[argparse.Action]:
+    """The arguments that may name a file or folder: text without a fixed set of choices."""
+    for action in parser._actions:
+        if action.choices is not None or action.nargs == 0 or action.type in (int, float):
+            continue
+        if action.dest in ("help", "version") or action.default is argparse.SUPPRESS and action.help is argparse.SUPPRESS:
+            continue
+        yield action
+
+
+def check_path_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse, before any work, an argument that names a named pipe, a device, a socket or a link loop.
+
+    Such a path given where kalmansfm reads or writes a file would make it wait for ever (a
+    FIFO nobody writes to) or read without end (``/dev/zero``); the one line says what it is.
+
+    Raises
+    ------
+    InvalidInputError
+        ``/dev/zero is a character device, not a file (given as --cameras)``.
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser(prog="x")
+    >>> _ = parser.add_argument("--cameras")
+    >>> check_path_arguments(parser, parser.parse_args(["--cameras", "cams.csv"]))
+    >>> check_path_arguments(parser, parser.parse_args(["--cameras", "/dev/zero"]))
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: /dev/zero is a character device, not a file (given as --cameras)
+    """
+    for action in _path_actions(parser):
+        value = getattr(args, action.dest, None)
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, (str, os.PathLike)) and os.fspath(item):
+                problem = path_problem(item)
+                if problem is not None:
+                    raise InvalidInputError(f"{os.fspath(item)} is {problem} (given as {_label(action)})")
+
+
+def suspect_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
+    """The options given a value so large (or, for a real number, so small) that they may explain an overflow.
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser(prog="x")
+    >>> _ = parser.add_argument("--pixel-std", type=float, default=1.0)
+    >>> _ = parser.add_argument("--frames", type=int, default=30)
+    >>> _ = parser.add_argument("--seed", type=int, default=0)
+    >>> suspect_arguments(parser, parser.parse_args(["--pixel-std", "1e300", "--frames", "100000000", "--seed", "9999999"]))
+    ['--pixel-std 1e+300', '--frames 100000000']
+    """
+    found = []
+    for action in parser._actions:
+        value = getattr(args, action.dest, None)
+        hidden = action.help is argparse.SUPPRESS  # an old spelling of an option that is listed itself
+        if hidden or isinstance(value, bool) or not action.option_strings or "seed" in action.dest:
+            continue
+        if isinstance(value, float) and math.isfinite(value) and value != 0.0:
+            suspect = not _SMALLEST_FLOAT <= abs(value) <= _LARGEST_FLOAT
+        elif isinstance(value, int):
+            suspect = abs(value) > _LARGEST_COUNT
+        else:
+            continue
+        if suspect:
+            found.append(f"{_label(action)} {value:g}" if isinstance(value, float) else f"{_label(action)} {value}")
+    return found

@@ -53,6 +53,12 @@ Progress = Callable[[int], None]
 #: recursive filter's state (inverse depth in the first camera frame).
 SPACES = ("point", "inverse_depth")
 _CHUNK = 100  # runs simulated together (vectorised), between progress reports
+#: The most Monte Carlo runs one call accepts: 10⁵ runs take about 7 minutes and 0.9 GB with Task 7's
+#: slowest estimator; far more is a typo, which would run for days before anyone noticed.
+MAX_RUNS = 100_000
+#: Seconds per run, for the estimate in the refusal (measured with ``kalmansfm consistency --runs 1000``,
+#: 2-core machine at load 4.5; Task 2 with ``--runs 100000``).
+_SECONDS_PER_RUN = {"kalman": 2e-5, "recursive": 1.4e-3, "batch": 4.4e-3, "pairs": 4e-4}
 
 
 @dataclass(frozen=True)
@@ -215,8 +221,30 @@ def consistency_from_errors(
     return ConsistencyResult(task, method, N, d, mean_nees, lo, hi, count, within1, within3, dict(parameters or {}))
 
 
-def _check_runs_seed(runs: object, seed: object) -> tuple[int, int]:
-    return check_count("runs", runs, 2), check_count("seed", seed, 0)
+def _duration(seconds: float) -> str:
+    """A rough duration in words.
+
+    Examples
+    --------
+    >>> _duration(40), _duration(4e3), _duration(4e6), _duration(4e9)
+    ('40 seconds', '67 minutes', '46 days', '127 years')
+    """
+    for unit, size in (("years", 365.25 * 86400), ("days", 86400), ("hours", 3600 * 3), ("minutes", 60)):
+        if seconds >= 2 * size:
+            divisor = 3600 if unit == "hours" else size
+            return f"{seconds / divisor:.0f} {unit}"
+    return f"{seconds:.0f} seconds"
+
+
+def _check_runs_seed(runs: object, seed: object, method: str) -> tuple[int, int]:
+    count = check_count("runs", runs, 2)
+    if count > MAX_RUNS:
+        per_run = _SECONDS_PER_RUN[method]
+        raise InvalidInputError(
+            f"runs must be an integer in 2 … {MAX_RUNS}; got {count} (about {_duration(count * per_run)} at "
+            f"{per_run * 1e3:.2g} ms per run)"
+        )
+    return count, check_count("seed", seed, 0)
 
 
 def _chunks(runs: int) -> list[int]:
@@ -234,7 +262,7 @@ def task2_consistency(runs: int = 300, seed: int = 0, progress: Progress | None 
     >>> task2_consistency(runs=200, seed=1).passed
     True
     """
-    runs, seed = _check_runs_seed(runs, seed)
+    runs, seed = _check_runs_seed(runs, seed, "kalman")
     task = load_task(2)
     truth = float(task.truth[0, 0])
     std = task.measurement_std[:, 0]  # (K,)
@@ -282,7 +310,7 @@ def task7_consistency(
         raise InvalidInputError(f"space must be one of {', '.join(SPACES)}; got {space!r}")
     if space == "inverse_depth" and method != "recursive":
         raise InvalidInputError(f"space 'inverse_depth' is the recursive filter's state; method is {method!r}")
-    runs, seed = _check_runs_seed(runs, seed)
+    runs, seed = _check_runs_seed(runs, seed, method)
     f = check_focal(focal)
     sigma = check_pixel_noise(pixel_noise_std)
     path = report_path(N_IMAGES)

@@ -26,6 +26,7 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from ..tracking.grey import colour_to_grey
 from ._csv import where
 from .atomic import OutputDirectory
+from .paths import native_path, path_problem
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -209,8 +210,12 @@ class FrameSource:
 
 
 def _video_frames(path: Path) -> Iterator[np.ndarray]:
+    name = native_path(path)
+    if name is None:  # OpenCV crashes on a name that is not UTF-8; PyAV reads the open file
+        yield from _video_frames_pyav(path)
+        return
     with quiet_decoders():
-        capture = cv2.VideoCapture(str(path))
+        capture = cv2.VideoCapture(name)
     produced = 0
     try:
         if capture.isOpened():
@@ -237,10 +242,12 @@ def _video_frames_pyav(path: Path) -> Iterator[np.ndarray]:
     av.logging.set_level(av.logging.PANIC)
     produced = 0
     try:
-        with av.open(str(path)) as container:
+        with open(path, "rb") as handle, av.open(handle) as container:
             for frame in container.decode(video=0):
                 produced += 1
                 yield frame.to_ndarray(format="gray")
+    except OSError as exc:
+        raise InvalidInputError(f"{where(path)}: cannot read the video ({exc.strerror or exc})") from None
     except (av.error.FFmpegError, ValueError, IndexError) as exc:  # type: ignore[attr-defined]
         if not produced:
             raise InvalidInputError(f"{where(path)}: not a decodable video or image ({_decoder_reason(exc)})") from None
@@ -271,8 +278,11 @@ def _decoder_reason(exc: Exception) -> str:
 
 
 def _video_count(path: Path) -> int | None:
+    name = native_path(path)
+    if name is None:
+        return None
     with quiet_decoders():
-        capture = cv2.VideoCapture(str(path))
+        capture = cv2.VideoCapture(name)
     try:
         if not capture.isOpened():
             return None
@@ -301,7 +311,8 @@ def read_frames(source: str | os.PathLike[str], min_frames: int = MIN_FRAMES) ->
     Raises
     ------
     InvalidInputError
-        Missing path, no images, a file that is not an image or video.
+        Missing path, no images, a file that is not an image or video; a named pipe, a
+        device or a symbolic link loop is named as what it is (it is never opened).
     NotEnoughDataError
         Fewer than ``min_frames`` images.
 
@@ -317,6 +328,9 @@ def read_frames(source: str | os.PathLike[str], min_frames: int = MIN_FRAMES) ->
     """
     text = os.fspath(source)
     path = Path(text)
+    problem = path_problem(path)
+    if problem is not None:
+        raise InvalidInputError(f"input {text} is {problem} (expected a folder of images, a glob or a video)")
     if path.is_dir():
         files = list_image_files(path)
         if not files:

@@ -3,16 +3,19 @@
 A run folder is what ``kalmansfm demo``, ``track``, ``reconstruct`` and ``scene`` write:
 ``summary.json`` (:class:`~kalmansfm.io.summary.RunSummary`) plus the files it lists.
 :func:`load_run` reads only the files the summary lists, so nothing left in the folder by
-another run can enter a report.  Every reader raises
+another run can enter a report, and only inside the folder: a listed name that is absolute,
+climbs out with ``..``, or is a symbolic link leading outside is refused before anything is
+read (:func:`run_file`, the rule for every reader of a run folder).  Every reader raises
 :class:`~kalmansfm.InvalidInputError` naming the file, the row or the field when a file
 cannot be used; a file the run did not write is simply ``None``.
 """
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import cv2
 import numpy as np
@@ -24,11 +27,12 @@ from ._csv import read_rows, where
 from .cameras import read_cameras
 from .frames import quiet_decoders
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
+from .paths import path_problem
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
 from .summary import SUMMARY_FILE, RunSummary, read_summary
 from .tracks import read_tracks_npz
 
-__all__ = ["CsvTable", "RunFolder", "load_run", "RUN_FIGURES"]
+__all__ = ["CsvTable", "RunFolder", "load_run", "run_file", "RUN_FIGURES"]
 
 #: Pre-rendered figures a run may carry, embedded in the report as they are.
 RUN_FIGURES = ("covariance_trace.png", "tracks.png", "structure.png", "fusion.png", "reconstruction.png")
@@ -74,8 +78,14 @@ class RunFolder:
         """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none."""
         frames = []
         for path in self.frame_paths:
-            with quiet_decoders():
-                image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            try:
+                data = np.fromfile(path, dtype=np.uint8)  # not cv2.imread: OpenCV crashes on names that are not UTF-8
+            except OSError as exc:
+                raise InvalidInputError(f"{where(path)}: cannot be read ({exc.strerror or exc})") from None
+            image = None
+            if data.size:
+                with quiet_decoders():
+                    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
             if image is None:
                 raise InvalidInputError(f"{where(path)}: cannot be read as a PNG image")
             if image.dtype != np.uint8:
@@ -84,6 +94,53 @@ class RunFolder:
                 image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
             frames.append(image)
         return frames
+
+
+def run_file(folder: str | os.PathLike[str], name: str) -> Path:
+    """The path of the run file ``name`` (as ``summary.json`` lists it) inside ``folder``; refuse one that leaves it.
+
+    A listed name must be relative and ``/``-separated without ``.`` or ``..`` parts, and what it
+    names (symbolic links followed) must lie inside the folder.  This is the rule for every
+    reader of a run folder: nothing outside it is ever read or written.
+
+    Raises
+    ------
+    InvalidInputError
+        ``FOLDER/summary.json: lists '../../etc/passwd', which is not a file of the run folder (…)``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> run_file(d, "frames/frame_000.png") == d / "frames" / "frame_000.png"
+    True
+    >>> run_file(d, "../../etc/passwd")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: .../summary.json: lists '../../etc/passwd', which is not a file of the run folder (a run names its files relative to its folder, without '..')
+    """
+    base = Path(folder)
+    summary = base / SUMMARY_FILE
+
+    def refuse(why: str) -> InvalidInputError:
+        return InvalidInputError(f"{where(summary)}: lists {name!r}, which is not a file of the run folder ({why})")
+
+    text = name if isinstance(name, str) else ""
+    parts = PurePosixPath(text).parts
+    if (not parts or PurePosixPath(text).is_absolute() or "\\" in text or "\x00" in text or ":" in parts[0]
+            or {".", ".."} & set(text.split("/")) or "" in text.split("/")):
+        raise refuse("a run names its files relative to its folder, without '..'")
+    path = base.joinpath(*parts)
+    try:
+        inside = path.resolve().is_relative_to(base.resolve())
+    except (OSError, RuntimeError):
+        raise refuse("a symbolic link loop") from None
+    if not inside:
+        raise refuse(f"it leads to {path.resolve()}, outside the folder")
+    problem = path_problem(path)
+    if problem is not None:
+        raise refuse(f"it is {problem}")
+    return path
 
 
 def _read_csv_table(path: Path) -> CsvTable:
@@ -112,8 +169,11 @@ def load_run(run_dir: str | Path) -> RunFolder:
     folder = Path(run_dir)
     if not folder.is_dir():
         raise InvalidInputError(f"run folder {folder} does not exist or is not a folder")
+    run_file(folder, SUMMARY_FILE)
     summary = read_summary(folder / SUMMARY_FILE)
     listed = set(summary.files)
+    for name in sorted(listed):
+        run_file(folder, name)
     missing = sorted(name for name in listed if not (folder / name).is_file())
     if missing:
         raise InvalidInputError(

@@ -237,6 +237,7 @@ def run_batch(
 
     rows: dict[int, BatchRow] = {}
     todo: list[tuple[int, str, Path]] = []
+    sources: dict[int, RunSource] = {}
     first_of: dict[str, int] = {}
     for k, spec in enumerate(sequences):
         name = folder_name(spec)
@@ -254,47 +255,57 @@ def run_batch(
             rows[k] = finished
         else:
             todo.append((k, spec, folder))
+            sources[k] = source
     if len(rows) == len(sequences) and all(r.status == "failed" for r in rows.values()):
         first = rows[0].error
         raise InvalidInputError(first if len(sequences) == 1 else f"none of the {len(sequences)} sequences can run; "
                                 f"the first: {first}")
 
     if todo:
-        from dask.distributed import as_completed
-
-        with dask_client(scheduler, n_workers, connect_timeout_s) as client:
-            try:
-                root.mkdir(parents=True, exist_ok=True)
-                futures = {
-                    client.submit(process_sequence, spec, str(folder), options, key=f"kalmansfm-{k}-{folder.name}",
-                                  pure=False): k
-                    for k, spec, folder in todo
-                }
-                iterator = as_completed(futures)
-                if progress:
-                    from tqdm import tqdm
-
-                    iterator = tqdm(iterator, total=len(futures), unit="sequence", desc="batch", leave=False)
-                for future in iterator:
-                    k = futures[future]
-                    try:
-                        rows[k] = future.result()
-                    except Exception as exc:  # a worker died: the sequence failed, the batch goes on
-                        rows[k] = BatchRow(sequences[k], str(root / folder_name(sequences[k])), "failed",
-                                           error=f"{type(exc).__name__}: {exc}")
-            except KeyboardInterrupt as exc:
-                finished = sum(1 for k, _, _ in todo if k in rows and rows[k].status == "ok")
-                raise Interrupted(
-                    f"{finished} of {len(todo)} sequences finished (their run folders are in {root}; "
-                    f"{BATCH_SUMMARY_FILE} was not written); run the same command again to do the rest",
-                    getattr(exc, "signal_number", signal.SIGINT),
-                ) from None
+        try:
+            _run_on_cluster(todo, rows, root, sequences, options, scheduler, n_workers, connect_timeout_s, progress)
+        except KeyboardInterrupt as exc:
+            # counted once the cluster is closed, on disk: a sequence whose run folder was swapped in finished,
+            # whether or not its row had come back before the interrupt
+            finished = sum(1 for k, spec, folder in todo if _finished_row(spec, folder, sources[k]) is not None)
+            raise Interrupted(
+                f"{finished} of {len(todo)} sequences finished (their run folders are in {root}; "
+                f"{BATCH_SUMMARY_FILE} was not written); run the same command again to do the rest",
+                getattr(exc, "signal_number", signal.SIGINT),
+            ) from None
 
     ordered = tuple(rows[k] for k in range(len(sequences)))
     text = batch_summary_csv(ordered)
     root.mkdir(parents=True, exist_ok=True)
     summary_path = atomic_write(root / BATCH_SUMMARY_FILE, lambda p: p.write_text(text, encoding="utf-8"))
     return BatchResult(ordered, summary_path)
+
+
+def _run_on_cluster(todo: list[tuple[int, str, Path]], rows: dict[int, BatchRow], root: Path,
+                    sequences: Sequence[str], options: dict[str, Any], scheduler: str | None, n_workers: int | None,
+                    connect_timeout_s: float, progress: bool) -> None:
+    """Run the sequences of ``todo`` as Dask tasks and put their rows in ``rows`` as they finish."""
+    from dask.distributed import as_completed
+
+    with dask_client(scheduler, n_workers, connect_timeout_s) as client:
+        root.mkdir(parents=True, exist_ok=True)
+        futures = {
+            client.submit(process_sequence, spec, str(folder), options, key=f"kalmansfm-{k}-{folder.name}",
+                          pure=False): k
+            for k, spec, folder in todo
+        }
+        iterator = as_completed(futures)
+        if progress:
+            from tqdm import tqdm
+
+            iterator = tqdm(iterator, total=len(futures), unit="sequence", desc="batch", leave=False)
+        for future in iterator:
+            k = futures[future]
+            try:
+                rows[k] = future.result()
+            except Exception as exc:  # a worker died: the sequence failed, the batch goes on
+                rows[k] = BatchRow(sequences[k], str(root / folder_name(sequences[k])), "failed",
+                                   error=f"{type(exc).__name__}: {exc}")
 
 
 def batch_summary_csv(rows: Sequence[BatchRow]) -> str:

@@ -79,9 +79,31 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
         ``scheduler`` is not an address or cannot be reached.
     """
     check_cluster(scheduler, n_workers)
-    # Dask logs every worker start and stop at INFO; keep stderr for our own messages.
-    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
-    logging.getLogger("distributed").setLevel(logging.WARNING)
+    with _dask_quiet():
+        yield from _client(scheduler, n_workers, connect_timeout_s)
+
+
+#: Dask's loggers, kept to errors while kalmansfm uses a cluster: its INFO lines tell every worker start and
+#: stop, and its WARNINGs ("Worker process still alive after 4.0 seconds, killing" when a loaded machine is slow
+#: to stop a worker at the end of a successful run) are about its own housekeeping, not the user's results.
+_DASK_LOGGERS = ("distributed", "dask", "bokeh", "tornado")
+
+
+@contextmanager
+def _dask_quiet() -> Iterator[None]:
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")  # read by worker processes as they start
+    loggers = [logging.getLogger(name) for name in _DASK_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)
+
+
+def _client(scheduler: str | None, n_workers: int | None, connect_timeout_s: float) -> Iterator[Any]:
     from dask.distributed import Client, LocalCluster
 
     cluster = None
@@ -100,19 +122,43 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
             # the scheduler's HTTP server starts even without a dashboard; on a free port, not
             # 8787, so a second cluster on the machine does not print a port warning
             scheduler_kwargs={"dashboard_address": ":0"},
-            silence_logs=logging.WARNING,
+            silence_logs=logging.ERROR,
+            # each worker ignores Ctrl-C (this process stops the cluster) and logs errors only
+            preload=["kalmansfm.pipeline._dask_worker"],
         )
         try:
             client = Client(cluster)
         except BaseException:
             cluster.close()
             raise
+    _quiet_interrupted_waits(client)
     try:
         yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _quiet_interrupted_waits(client: Any) -> None:
+    """Drop what the client's event loop reports about waits that a closed client ended.
+
+    After Ctrl-C during ``gather`` the client closes while it still waits for each result;
+    each wait then ends with Dask's ``AllExit``, and asyncio reports every such task
+    ("Task exception was never retrieved", 5 lines each, 240 lines for 48 chunks) when it is
+    collected.  Other reports of that loop pass unchanged.
+    """
+    loop = getattr(getattr(client, "loop", None), "asyncio_loop", None)
+    if loop is None:
+        return
+
+    def report(event_loop: Any, context: dict[str, Any]) -> None:
+        exception = context.get("exception")
+        if type(exception).__name__ == "AllExit" or isinstance(exception, KeyboardInterrupt):
+            return
+        event_loop.default_exception_handler(context)
+
+    loop.set_exception_handler(report)
 
 
 class ScatteringExecutor:

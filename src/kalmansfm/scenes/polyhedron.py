@@ -21,6 +21,7 @@ is convex, so back-face culling is exact hidden-surface removal.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -330,6 +331,44 @@ def _check_size(image_size: Any) -> tuple[int, int]:
     return width, height
 
 
+#: Peak memory of rendering, per pixel of the sequence (float32 frames, the float64 noise, the uint8 result):
+#: measured 20.6 bytes (``render_scene`` of 530 vs 30 frames at 320×240, maximum resident size).
+_RENDER_BYTES_PER_PIXEL = 21
+
+
+def _physical_memory() -> int | None:
+    """The machine's memory in bytes, where the system says (POSIX), else None."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _size_in_words(n_bytes: float) -> str:
+    """A memory size in words (binary units).
+
+    Examples
+    --------
+    >>> _size_in_words(6.7 * 2**30), _size_in_words(161e12)
+    ('6.7 GB', '146 TB')
+    """
+    for unit, size in (("TB", 2**40), ("GB", 2**30), ("MB", 2**20)):
+        if n_bytes >= size:
+            return f"{n_bytes / size:.2g} {unit}" if n_bytes < 10 * size else f"{n_bytes / size:.0f} {unit}"
+    return f"{n_bytes / 2**10:.0f} KB"
+
+
+def _check_memory(n_frames: int, width: int, height: int) -> None:
+    """Refuse a sequence whose rendering would need more memory than the machine has, before allocating any."""
+    needed = float(n_frames) * width * height * _RENDER_BYTES_PER_PIXEL
+    available = _physical_memory()
+    if available is not None and needed > available:
+        raise InvalidInputError(
+            f"n_frames {n_frames} of {width}x{height} would need about {_size_in_words(needed)} of memory to render "
+            f"(this machine has {_size_in_words(available)}); use fewer frames or smaller images"
+        )
+
+
 def _check_occluder(occluder: Occluder | dict | None, n_frames: int, n_points: int) -> Occluder | None:
     if occluder is None:
         return None
@@ -438,6 +477,7 @@ def render_scene(
         raise InvalidInputError(f"marker_size_px must be in [0, 30] (0: no markers); got {marker_size_px}")
     if not isinstance(supersample, (int, np.integer)) or not 1 <= supersample <= 8:
         raise InvalidInputError(f"supersample must be an integer in 1 … 8; got {supersample!r}")
+    _check_memory(n_frames, width, height)
     corners, faces = _house()
     occluder = _check_occluder(occluder, n_frames, len(corners))
 

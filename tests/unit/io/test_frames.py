@@ -1,5 +1,7 @@
 """Frames reader: natural order, ignored files, grey conversion, and every kind of bad input."""
 
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -103,3 +105,33 @@ def test_float32_tiff_that_opencv_reads_is_a_frame(tmp_path):
     # [0, 1] intensities scaled by 255
     np.testing.assert_array_equal(frames[2], np.rint(ramp * 255).astype(np.uint8))
     np.testing.assert_array_equal(frames[0], np.rint(ramp / 3 * 255).astype(np.uint8))
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes are POSIX")
+def test_a_pipe_a_device_or_a_link_loop_is_named_as_what_it_is_and_never_opened(tmp_path):
+    os.mkfifo(tmp_path / "clip.avi")  # nobody writes into it: opening it would wait for ever
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    (tmp_path / "gone").symlink_to(tmp_path / "nowhere")
+    cases = [(tmp_path / "clip.avi", r"is a named pipe \(FIFO\), not a file"), ("/dev/zero", "is a character device"),
+             (tmp_path / "loop", "is a symbolic link loop"), (tmp_path / "gone", "is a broken symbolic link")]
+    for path, words in cases:
+        with pytest.raises(InvalidInputError, match=words):
+            read_frames(path)
+    write_frames(tmp_path / "frames", ["1.png", "2.png", "3.png"])
+    os.mkfifo(tmp_path / "frames" / "4.png")  # a pipe among the frames is not a frame
+    assert [p.name for p in read_frames(tmp_path / "frames").files] == ["1.png", "2.png", "3.png"]
+
+
+def test_names_that_are_not_utf8_are_read_without_handing_them_to_opencv(tmp_path):
+    """OpenCV crashes (SIGSEGV) on a path that is not UTF-8 text; frames and videos are read from Python."""
+    write_frames(tmp_path / "frames", ["1.png", "2.png", "3.png"])  # cv2.imwrite too crashes on such a name
+    folder = (tmp_path / "frames").rename(tmp_path / os.fsdecode(b"frames\xff"))
+    assert [int(f.mean()) for f in read_frames(folder)] == [0, 10, 20]
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (32, 24))
+    for k in range(5):
+        writer.write(np.full((24, 32, 3), 40 * k, np.uint8))
+    writer.release()
+    video = path.rename(tmp_path / os.fsdecode(b"clip\xff.avi"))
+    images = list(read_frames(video))
+    assert len(images) == 5 and [int(round(im.mean() / 40)) for im in images] == [0, 1, 2, 3, 4]
