@@ -174,7 +174,7 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
     for name in ("states", "covariances"):
         values = getattr(tracks, name)
         if values is not None:
-            present |= np.isfinite(values).reshape(values.shape[0], values.shape[1], -1).any(axis=2)
+            present |= np.isfinite(values).reshape(*values.shape[:2], int(np.prod(values.shape[2:]))).any(axis=2)
     arrays = {
         "status": tracks.status.astype(np.int8),
         "track_ids": tracks.track_ids.astype(np.int64),

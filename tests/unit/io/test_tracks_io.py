@@ -64,3 +64,13 @@ def test_points_csv(tmp_path):
     p.write_text("x,y,track_id\n1,2,4\n3,4,4\n")
     with pytest.raises(InvalidInputError, match=r"p\.csv: line 3: track_id 4 repeats line 2$"):
         read_points_csv(p)
+
+
+def test_tracks_without_a_single_track_round_trip(tmp_path):
+    """A clip where no corner was found: zero tracks, still a valid tracks.npz."""
+    from kalmansfm.io.tracks import read_tracks_npz, write_tracks_npz
+    from kalmansfm.tracking import Tracks
+
+    empty = Tracks.empty(3, 0)
+    back = read_tracks_npz(write_tracks_npz(empty, tmp_path / "t.npz"))
+    assert back.positions.shape == (3, 0, 2) and back.covariances.shape == (3, 0, 4, 4)
