@@ -17,16 +17,15 @@ The normal systems and the cost come from one of two formulations of the same su
 
 - *dense* (small problems): two (2F, P) arrays, the values (0 where unobserved) and the
   weights, and matrix products with thin blocks — BLAS does the work;
-- *compiled* (2F·P ≥ ``_COMPILED_ENTRIES``): numba kernels
+- *compiled* (2F·P ≥ ``_COMPILED_ENTRIES`` = 2·10⁶): numba kernels
   (:mod:`~kalmansfm.structure.affine._als_kernels`) that read ``positions``, the observed mask and
   the weights where they lie (no (2F, P) copy), one pass over them per step. The cost of an
   iterate is summed in the same pass that builds the next point step's systems, so an
-  iteration is two reads of the data instead of three, and no BLAS call is made: on a
-  shared machine a multi-threaded BLAS made each of those small products wait for a busy
-  core (8 s instead of 0.8 s on a 656-frame clip at load 10).
+  iteration is two reads of the data instead of three, and no (2F, P) array is made.
 
 The dense formulation is the kernels' reference (the tests compare them); below the
-threshold the compilation (about a second, once) would cost more than it saves.
+threshold the compilation (about 2 s of CPU, once, cached on disk) would cost more than it
+saves. Either way the iterates agree to rounding: the same sums in another order.
 """
 
 from __future__ import annotations
@@ -35,8 +34,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-# Frames × points from which the normal systems are built by the compiled kernels.
-_COMPILED_ENTRIES = 50_000
+# 2F·P from which the normal systems are built by the compiled kernels: large input, as for the
+# streamed closed form. Below it the products (BLAS single-threaded inside factorize) take well under a
+# second a hundred iterations, less than compiling the kernels once (about 2 s of CPU).
+_COMPILED_ENTRIES = 2_000_000
 # Relative ridge that keeps exactly singular systems solvable without biasing others.
 _RIDGE = 1e-13
 

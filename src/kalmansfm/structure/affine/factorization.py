@@ -191,7 +191,7 @@ def factor_affine(
     bound) and each point's squared residuals are summed in the same pass over ``positions``
     (the reprojection M S + t equals the rank-3 part of W plus the centroids). The first
     such call in a new environment compiles three numba kernels (a few seconds, cached on
-    disk); so does the first ALS of more than 25 000 frames × points (three kernels).
+    disk); so does the first ALS of large input (2F·P > 2·10⁶; two kernels).
     Degenerate input is flagged in ``warnings`` rather than raised: a rank-2 W (coplanar
     points, or no rotation out of the image plane), a flat shape, a metric system too
     ill-conditioned to fix depth, and a non-positive-definite A (replaced by the nearest
