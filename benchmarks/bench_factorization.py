@@ -1,18 +1,20 @@
 """Factorization of a large track array: ``kalmansfm.factorize`` end to end vs scipy ``svds(k=3)`` on
-the centred W it implies, then the rank-3 solvers side by side, then the missing-data path.
+the centred W it implies, then the rank-3 solvers side by side, then the missing-data path — on two
+scenes in one run: a camera turning smoothly about an axis (video-like) and random orientations.
 
 Usage::
 
-    python benchmarks/bench_factorization.py            # 1000 frames x 100000 points (W 2000 x 100000; ~9 GB)
-    python benchmarks/bench_factorization.py --frames 200 --points 20000
+    python benchmarks/bench_factorization.py            # both scenes, 1000 frames x 100000 points (~9 GB)
+    python benchmarks/bench_factorization.py --scene smooth --frames 200 --points 20000
+    python benchmarks/bench_factorization.py --layout c # the smooth scene C-ordered instead of (F, 2, P)
     python benchmarks/bench_factorization.py --profile  # also a cProfile of one factorize call
     python benchmarks/bench_factorization.py --steps 4  # CPU time and page faults of each step, 4 calls
 
-The same script runs on the code before issue 17 (the table's factorize row, and ``--steps`` with
-that version's step names)::
+The same script runs on older code (the table's factorize row, and ``--steps`` with that version's
+step names), e.g. the code before issue 29::
 
-    git archive f7ed7b8 src | tar -x -C /tmp/before
-    PYTHONPATH=/tmp/before/src python benchmarks/bench_factorization.py --steps 4
+    git archive fc44746 src | tar -x -C /tmp/before
+    PYTHONPATH=/tmp/before/src python benchmarks/bench_factorization.py --missing-fraction 0
 
 One core: the script sets the BLAS/OpenMP/numba thread variables to 1 before NumPy is imported, so
 our code and scipy's ARPACK run single-threaded in the same process. ``factorize`` gets the

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 
@@ -119,7 +120,7 @@ def affine_reconstruction(factors: AffineFactors, uncertainty: PointUncertainty,
         covariance_gauge=AFFINE_GAUGE,
         # the residual lengths are measured when first read (large complete input: only then)
         observations=Observations.from_dense(np.asarray(positions), used=factors.observed,
-                                             residuals=lambda: factors.residuals),
+                                             residuals=partial(getattr, factors, "residuals")),
         noise=NoiseEstimate(std=uncertainty.noise_std, estimated=True, degrees_of_freedom=uncertainty.dof,
                             unit="unit weight" if weighted else "px"),
         reprojection_rms=factors.residual_rms,
