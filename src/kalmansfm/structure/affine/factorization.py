@@ -159,9 +159,10 @@ def factor_affine(
         lies: a float64 or float32 array that is C-ordered or (F, 2, P) in memory (as
         ``(R[:, :2] @ S.T).transpose(0, 2, 1)`` makes it) is neither copied nor converted
         (float32 stays float32 in memory; the arithmetic is float64), and neither a 2F × P
-        matrix nor an (F, P) array is made: the peak memory beyond the input is a few
-        arrays of P numbers (about 3 % of the input). Other dtypes or layouts are converted
-        once. No ``copy=False`` option is needed: there is no copy to avoid.
+        matrix nor an (F, P) array is made: the peak memory beyond the input is the start's
+        samples and a few arrays of P numbers (5 % of the input at 1000 × 100 000). Other
+        dtypes or layouts are converted once. No ``copy=False`` option is needed: there is
+        no copy to avoid.
     weights : (F, P) or (F, P, 2) float ≥ 0, optional — per-entry least-squares weights,
         typically 1 / σ² from the tracker's posterior standard deviations. A zero weight
         ignores the entry. Without weights every observation counts equally.
