@@ -1,18 +1,20 @@
 """Factorization of a large track array: ``kalmansfm.factorize`` end to end vs scipy ``svds(k=3)`` on
-the centred W it implies, then the rank-3 solvers side by side, then the missing-data path.
+the centred W it implies, then the rank-3 solvers side by side, then the missing-data path — on two
+scenes in one run: a camera turning smoothly about an axis (video-like) and random orientations.
 
 Usage::
 
-    python benchmarks/bench_factorization.py            # 1000 frames x 100000 points (W 2000 x 100000; ~9 GB)
-    python benchmarks/bench_factorization.py --frames 200 --points 20000
+    python benchmarks/bench_factorization.py            # both scenes, 1000 frames x 100000 points (~9 GB)
+    python benchmarks/bench_factorization.py --scene smooth --frames 200 --points 20000
+    python benchmarks/bench_factorization.py --layout c # the smooth scene C-ordered instead of (F, 2, P)
     python benchmarks/bench_factorization.py --profile  # also a cProfile of one factorize call
     python benchmarks/bench_factorization.py --steps 4  # CPU time and page faults of each step, 4 calls
 
-The same script runs on the code before issue 17 (the table's factorize row, and ``--steps`` with
-that version's step names)::
+The same script runs on older code (the table's factorize row, and ``--steps`` with that version's
+step names), e.g. the code before issue 29::
 
-    git archive f7ed7b8 src | tar -x -C /tmp/before
-    PYTHONPATH=/tmp/before/src python benchmarks/bench_factorization.py --steps 4
+    git archive fc44746 src | tar -x -C /tmp/before
+    PYTHONPATH=/tmp/before/src python benchmarks/bench_factorization.py --missing-fraction 0
 
 One core: the script sets the BLAS/OpenMP/numba thread variables to 1 before NumPy is imported, so
 our code and scipy's ARPACK run single-threaded in the same process. ``factorize`` gets the
@@ -48,14 +50,51 @@ from kalmansfm.structure import align_similarity, factorize, subspace_angle, tru
 GB = 1e9
 
 
-def scene(frames: int, points: int, noise_px: float, rng: np.random.Generator) -> np.ndarray:
-    """(F, P, 2) orthographic tracks of a random rigid object (pixels), 1 px noise by default."""
+def random_scene(frames: int, points: int, noise_px: float, rng: np.random.Generator) -> np.ndarray:
+    """(F, P, 2) orthographic tracks of a random rigid object seen in random orientations (pixels), C order."""
     shape = rng.normal(size=(points, 3)) * np.array([60.0, 40.0, 25.0])
     q, _ = np.linalg.qr(rng.normal(size=(frames, 3, 3)))
     positions = shape @ q[:, :2].transpose(0, 2, 1)  # (F, P, 2) = S M_fᵀ
     positions += rng.uniform(100, 400, size=(frames, 1, 2))
     positions += noise_px * rng.normal(size=positions.shape)
     return positions
+
+
+def rotations_about(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations by ``angles`` (radians) about the unit vector along ``axis`` (Rodrigues)."""
+    k = np.cross(np.eye(3), axis / np.linalg.norm(axis))  # k @ v = axis × v
+    a = np.asarray(angles)[:, None, None]
+    return np.eye(3) + np.sin(a) * k + (1.0 - np.cos(a)) * (k @ k)
+
+
+def smooth_scene(frames: int, points: int, noise_px: float, rng: np.random.Generator, turn_deg: float = 45.0,
+                 jitter_deg: float = 0.1) -> np.ndarray:
+    """(F, P, 2) tracks of a video-like shot: the camera turns smoothly by ``turn_deg`` about a fixed,
+    slightly tilted axis over the frames, with a hand-held jitter of ``jitter_deg`` (std, degrees) in
+    the angle and about the horizontal axis, and pans slowly; ``noise_px`` image noise.
+
+    Rendered the way such a scene is naturally written, camera rows times points, so the array is
+    (F, 2, P) in memory and seen as (F, P, 2) (not C-ordered; ``--layout c`` gives a C-ordered copy).
+    """
+    shape = rng.normal(size=(points, 3)) * np.array([60.0, 40.0, 25.0])
+    angles = np.radians(np.linspace(0.0, turn_deg, frames) + jitter_deg * rng.normal(size=frames))
+    shake = rotations_about(np.array([1.0, 0.0, 0.0]), np.radians(jitter_deg * rng.normal(size=frames)))
+    cameras = shake @ rotations_about(np.array([0.1, 1.0, 0.2]), angles)
+    pan = 250.0 + np.cumsum(rng.normal(scale=0.3, size=(frames, 2)), axis=0)
+    image = cameras[:, :2] @ shape.T + pan[:, :, None]  # (F, 2, P)
+    image += noise_px * rng.normal(size=image.shape)
+    return image.transpose(0, 2, 1)
+
+
+SCENES = {"smooth": smooth_scene, "random": random_scene}
+
+
+def layout_name(positions: np.ndarray) -> str:
+    if positions.flags.c_contiguous:
+        return "C-ordered (F, P, 2)"
+    if positions.transpose(0, 2, 1).flags.c_contiguous:
+        return "(F, 2, P) in memory"
+    return f"strides {positions.strides}"
 
 
 def range_finder_one_power_iteration(w: np.ndarray, k: int = 3, oversampling: int = 10, seed: int = 0):
@@ -176,6 +215,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=1000, help="F; W has 2F rows")
     parser.add_argument("--points", type=int, default=100_000, help="P; W has P columns")
+    parser.add_argument("--scene", choices=("smooth", "random", "both"), default="both",
+                        help="smooth: a camera turning 45 degrees about an axis (video-like); random: a random "
+                             "orientation per frame; both: one after the other in one run (default)")
+    parser.add_argument("--layout", choices=("natural", "c"), default="natural",
+                        help="natural: the array as the scene makes it (smooth: (F, 2, P) in memory); c: a "
+                             "C-ordered copy")
     parser.add_argument("--noise", type=float, default=1.0, help="pixel noise std")
     parser.add_argument("--repeat", type=int, default=2, help="timed rounds (best of)")
     parser.add_argument("--full-svd-points", type=int, default=2000, help="numpy full SVD on the first columns only")
@@ -184,23 +229,38 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=0, metavar="CALLS",
                         help="time the steps of factorize (CPU, page faults) over CALLS calls")
     args = parser.parse_args()
-    frames, points = args.frames, args.points
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores shared with other jobs; one thread; "
           f"load average {os.getloadavg()[0]:.1f} at start; numpy {np.__version__}, scipy {scipy.__version__}")
+    names = ("smooth", "random") if args.scene == "both" else (args.scene,)
+    summary = [run_scene(name, args) for name in names]
+    print("\n| scene | layout | factorize (s) | svds (s) | **factorize / svds** | CPU ratio | peak memory / input "
+          "(tracemalloc, RSS rise) | load around the rounds |")
+    print("|---|---|---:|---:|---:|---:|---|---|")
+    for row in summary:
+        print(row)
+    print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
 
-    positions = scene(frames, points, args.noise, np.random.default_rng(0))
+
+def run_scene(name: str, args: argparse.Namespace) -> str:
+    """Every measurement of one scene; returns its line of the closing summary table."""
+    frames, points = args.frames, args.points
+    positions = SCENES[name](frames, points, args.noise, np.random.default_rng(0))
+    if args.layout == "c":
+        positions = np.ascontiguousarray(positions)
+    layout = layout_name(positions)
     size_in = f"{frames} x {points} x 2"
+    print(f"\n## {name} scene: {size_in} float64, {positions.nbytes / GB:.2f} GB, {layout}")
     start = time.perf_counter()
     warm_up = positions[:, : max(4, 2_000_000 // (2 * frames) + 1)]  # just large enough for the streamed path
     factorize(warm_up)  # numba kernels: compile or load the cache, float64 and float32
     factorize(warm_up.astype(np.float32))
-    print(f"input: {size_in} float64, {positions.nbytes / GB:.2f} GB; first call (kernel compilation or cache "
-          f"load, small slice) {time.perf_counter() - start:.1f} s")
+    print(f"first call (kernel compilation or cache load, small slice) {time.perf_counter() - start:.1f} s")
 
     traced, rss = peak_memory(lambda: factorize(positions))
     rss_text = "n/a" if rss is None else f"{rss / GB:.2f} GB ({rss / positions.nbytes:.2f}x)"
     print(f"factorize peak memory: tracemalloc {traced / GB:.2f} GB ({traced / positions.nbytes:.2f}x the input), "
           f"peak RSS rise {rss_text}")
+    print(f"streamed solver: {solver_passes(positions)}")
     if args.profile:
         profile = cProfile.Profile()
         profile.enable()
@@ -210,11 +270,11 @@ def main() -> None:
     if args.steps:
         time_steps(positions, args.steps)
 
-    w = positions.transpose(0, 2, 1).reshape(2 * frames, points)  # a copy (transposed layout)
-    w -= w.mean(axis=1, keepdims=True)
+    w = positions.transpose(0, 2, 1).reshape(2 * frames, points)  # a C-ordered copy, or a view of one
+    w = w - w.mean(axis=1, keepdims=True)
     size = f"{w.shape[0]} x {w.shape[1]}"
 
-    single = positions.astype(np.float32)
+    single = positions.astype(np.float32)  # same layout
     traced32, _ = peak_memory(lambda: factorize(single))
     contenders = {
         "factorize": lambda: factorize(positions),
@@ -272,16 +332,18 @@ def main() -> None:
                  float("nan"), f"x{scale:.0f} columns: ≈ {t_full * scale:.0f} s for the whole W"))
     del w, small, single
 
-    print(f"\nbest of {args.repeat} interleaved rounds; load average {load_before:.1f} before, {load_after:.1f} after\n")
+    print(f"\n{name} scene, best of {args.repeat} interleaved rounds; load average {load_before:.1f} before, "
+          f"{load_after:.1f} after\n")
     print("| implementation | size | seconds (wall) | ratio to svds | CPU s (user + sys) | CPU ratio to svds "
           "| max principal angle to exact (rad) | notes |")
     print("|---|---|---:|---:|---:|---:|---:|---|")
-    for key, name, shown, angle, note in rows:
+    for key, label, shown, angle, note in rows:
         timed = f"{cpu[key]:.3f} | {cpu[key] / cpu['svds']:.2f}" if key in cpu else "– | –"
-        print(f"| {name} | {shown} | {best[key]:.3f} | {best[key] / best['svds']:.2f} | {timed} | {angle:.1e} | {note} |")
+        print(f"| {label} | {shown} | {best[key]:.3f} | {best[key] / best['svds']:.2f} | {timed} | {angle:.1e} "
+              f"| {note} |")
 
     if args.missing_fraction > 0:
-        holes = positions.copy()
+        holes = np.array(positions)  # same layout
         holes[np.random.default_rng(2).random((frames, points)) < args.missing_fraction] = np.nan
         start = time.perf_counter()
         traced_als, rss_als = peak_memory(lambda: results.__setitem__("als", factorize(holes)))
@@ -290,14 +352,30 @@ def main() -> None:
         fit = align_similarity(als.points, rec.points, allow_reflection=True)
         radius = np.sqrt(np.mean(np.sum(rec.points**2, axis=1)))
         rss_text = "n/a" if rss_als is None else f"{rss_als / GB:.2f} GB"
-        print(f"\n| missing data | size | seconds | peak memory (tracemalloc / RSS rise) | ALS iterations | "
-              f"shape vs complete data (RMS radius) | residual (px) |")
+        print("\n| missing data | size | seconds | peak memory (tracemalloc / RSS rise) | ALS iterations | "
+              "shape vs complete data (RMS radius) | residual (px) |")
         print("|---|---|---:|---|---:|---:|---:|")
         print(f"| {args.missing_fraction:.0%} of the positions NaN | {size_in} | {t_als:.1f} | "
               f"{traced_als / GB:.2f} GB ({traced_als / holes.nbytes:.2f}x) / {rss_text} | {als.details.iterations} | "
               f"{fit.rms / radius:.1e} | {als.reprojection_rms:.4f} (complete: {rec.reprojection_rms:.4f}) |")
         print("(one call, with tracemalloc running)")
-    print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
+        del holes, als
+    rss_short = "n/a" if rss is None else f"{rss / positions.nbytes:.2f}x"
+    return (f"| {name} | {layout} | {best['factorize']:.3f} | {best['svds']:.3f} | "
+            f"**{best['factorize'] / best['svds']:.2f}** | {cpu['factorize'] / cpu['svds']:.2f} | "
+            f"{traced / positions.nbytes:.2f}x, {rss_short} | {load_before:.1f} → {load_after:.1f} |")
+
+
+def solver_passes(positions: np.ndarray) -> str:
+    """Reads of the array and the certified angle of the streamed rank-3 solver, as factorize runs it."""
+    from kalmansfm.structure.affine import _measurement, factorization
+
+    fit = _measurement.streamed_rank(positions, 3, tol=factorization._SUBSPACE_TOL, max_passes=12,
+                                     rng=np.random.default_rng(0))
+    if fit is None:
+        return "declined (NaN or infinity)"
+    return (f"{fit.passes} reads of the array, Davis–Kahan bound {fit.angle_bound:.1e} rad "
+            f"({'certified' if fit.certified else 'estimate'}), σ4/σ3 ≈ {fit.extra_singular_values[0] / fit.s[2]:.2g}")
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ numbers files use (by default the indices).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, Union
@@ -107,27 +108,30 @@ class Observations:
     shape: tuple[int, int]
     _positions: np.ndarray | None = field(default=None, repr=False)
     _used: np.ndarray | None = field(default=None, repr=False)
-    _residuals: np.ndarray | None = field(default=None, repr=False)
+    _residuals: np.ndarray | Callable[[], np.ndarray] | None = field(default=None, repr=False)
     _rejected: np.ndarray | None = field(default=None, repr=False)
     _sparse: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
 
     @classmethod
     def from_dense(cls, positions: np.ndarray, *, used: np.ndarray | None = None,
-                   residuals: np.ndarray | None = None, rejected: np.ndarray | None = None) -> Observations:
+                   residuals: np.ndarray | Callable[[], np.ndarray] | None = None,
+                   rejected: np.ndarray | None = None) -> Observations:
         """Observations of (F, P, 2) ``positions`` (NaN where none); ``used`` (F, P) defaults to every one.
 
         ``residuals`` (F, P) is each observation's reprojection error length in pixels (NaN where
-        unknown); ``rejected`` (F, P) marks the observations an outlier test rejected (default none).
+        unknown), or a function returning it, called when the residuals are first read (a large
+        reconstruction then makes the array only if it is used); ``rejected`` (F, P) marks the
+        observations an outlier test rejected (default none).
         """
         positions = np.asarray(positions)
         if positions.ndim != 3 or positions.shape[2] != 2:
             raise InvalidInputError(f"observations must have shape (frames, points, 2); got {positions.shape}")
         shape = (int(positions.shape[0]), int(positions.shape[1]))
         for name, a in (("used", used), ("residuals", residuals), ("rejected", rejected)):
-            if a is not None and np.shape(a) != shape:
+            if a is not None and not callable(a) and np.shape(a) != shape:
                 raise InvalidInputError(f"{name} must have shape {shape}; got {np.shape(a)}")
         return cls(shape, positions, None if used is None else np.asarray(used, dtype=bool),
-                   None if residuals is None else np.asarray(residuals),
+                   residuals if residuals is None or callable(residuals) else np.asarray(residuals),
                    None if rejected is None else np.asarray(rejected, dtype=bool))
 
     @classmethod
@@ -150,6 +154,10 @@ class Observations:
         return cls((int(shape[0]), int(shape[1])), _sparse=(frame, point, xy, used, residual, rejected))
 
     @cached_property
+    def _residual_values(self) -> np.ndarray | None:
+        return self._residuals() if callable(self._residuals) else self._residuals
+
+    @cached_property
     def _arrays(self) -> tuple[np.ndarray, ...]:
         if self._sparse is not None:
             return self._sparse
@@ -158,8 +166,8 @@ class Observations:
         seen = np.isfinite(positions).all(axis=2)
         frame, point = np.nonzero(seen)
         used = np.ones(frame.size, dtype=bool) if self._used is None else self._used[frame, point]
-        residual = np.full(frame.size, np.nan) if self._residuals is None else \
-            np.asarray(self._residuals[frame, point], dtype=np.float64)
+        residual = np.full(frame.size, np.nan) if self._residual_values is None else \
+            np.asarray(self._residual_values[frame, point], dtype=np.float64)
         rejected = np.zeros(frame.size, dtype=bool) if self._rejected is None else self._rejected[frame, point]
         return (frame.astype(np.int64), point.astype(np.int64), positions[frame, point].astype(np.float64), used,
                 residual, rejected)
@@ -254,8 +262,8 @@ class Observations:
 
     def residual_matrix(self) -> np.ndarray:
         """(F, P) reprojection error lengths, NaN where there is no observation or no value."""
-        if self._residuals is not None:
-            return self._residuals
+        if self._residual_values is not None:
+            return self._residual_values
         out = np.full(self.shape, np.nan)
         out[self.frame, self.point] = self.residual
         return out

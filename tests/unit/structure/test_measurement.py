@@ -23,11 +23,18 @@ def centred_w(positions):
     return w - w.mean(axis=1, keepdims=True)
 
 
+def kernel_view(x, planar):
+    """The array the kernels index: (F, P, 2) C-ordered, or the C-ordered (F, 2, P) of the same values."""
+    return np.ascontiguousarray(x.transpose(0, 2, 1)) if planar else np.ascontiguousarray(x)
+
+
+@pytest.mark.parametrize("planar", [False, True])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_compiled_kernels_equal_their_numpy_references(dtype):
+def test_compiled_kernels_equal_their_numpy_references(dtype, planar):
     rng = np.random.default_rng(0)
     x, _ = tracks(rng, frames=7, points=101, dtype=dtype)  # 101 points: a partial last block
     frames, points = x.shape[:2]
+    data = kernel_view(x, planar)
     centroids = x.astype(np.float64).mean(axis=1)
     shift = centroids + rng.normal(size=centroids.shape)
     start = rng.normal(size=(4, points))
@@ -35,17 +42,19 @@ def test_compiled_kernels_equal_their_numpy_references(dtype):
     u3 = np.ascontiguousarray(u[:, :, :3])
     xf = x.astype(np.float64)
 
-    for got, want in zip(_measurement._first_pass(x, shift, start), _measurement._first_pass_reference(xf, shift, start)):
+    for got, want in zip(_measurement._first_pass(data, planar, shift, start),
+                         _measurement._first_pass_reference(xf, shift, start)):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
-    for got, want in zip(_measurement._round_trip(x, centroids, u, 16), _measurement._round_trip_reference(xf, centroids, u)):
+    for got, want in zip(_measurement._round_trip(data, planar, centroids, u, 16),
+                         _measurement._round_trip_reference(xf, centroids, u)):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
-    distances = np.empty((frames, points), dtype=dtype)
-    z, ry, total = _measurement._projection_pass(x, centroids, u3, 16, distances)
-    z_ref, ry_ref, total_ref, distances_ref = _measurement._projection_pass_reference(xf, centroids, u3)
+    point_sums = np.full(points, np.nan)
+    z, ry, total = _measurement._projection_pass(data, planar, centroids, u3, 16, point_sums)
+    z_ref, ry_ref, total_ref, point_sums_ref = _measurement._projection_pass_reference(xf, centroids, u3)
     np.testing.assert_allclose(z, z_ref, rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(ry, ry_ref, rtol=1e-9, atol=1e-6)
     assert total == pytest.approx(total_ref, rel=1e-12)
-    np.testing.assert_allclose(distances, distances_ref, rtol=1e-6 if dtype == np.float32 else 1e-12)
+    np.testing.assert_allclose(point_sums, point_sums_ref, rtol=1e-10)
 
 
 def test_streamed_rank_equals_lapack_and_its_residual_equals_the_direct_one():
@@ -62,7 +71,8 @@ def test_streamed_rank_equals_lapack_and_its_residual_equals_the_direct_one():
     # the residuals of the rank-3 part, directly
     direct = w - (exact.U[:, :3] * exact.S[:3]) @ exact.Vh[:3]
     frames, points = x.shape[:2]
-    np.testing.assert_allclose(fit.residuals, np.sqrt((direct.reshape(frames, 2, points) ** 2).sum(axis=1)), rtol=1e-9)
+    np.testing.assert_allclose(fit.point_residual_sums, (direct.reshape(frames, 2, points) ** 2).sum(axis=(0, 1)),
+                               rtol=1e-9)
     assert fit.residual_sum == pytest.approx(np.sum(direct**2), rel=1e-12)
     # ‖W‖²_F − Σσᵢ² agrees too, to the precision its cancellation leaves (‖W‖²_F / residual ≈ 10³ here)
     assert fit.residual_sum == pytest.approx(np.sum(w**2) - np.sum(exact.S[:3] ** 2), rel=1e-9)
@@ -84,7 +94,7 @@ def test_streamed_rank_declines_nan_and_inf(bad, monkeypatch):
     x, _ = tracks(np.random.default_rng(3))
     x[5, 7, 1] = bad
     # found by the first pass's sums (the compiled kernel) even where the column sample misses it
-    sums, squares, _ = _measurement._first_pass(x, np.zeros((x.shape[0], 2)), np.zeros((4, x.shape[1])))
+    sums, squares, _ = _measurement._first_pass(x, False, np.zeros((x.shape[0], 2)), np.zeros((4, x.shape[1])))
     assert not np.isfinite(sums[5, 1]) and not np.isfinite(squares[5, 1]) and np.isfinite(sums[4]).all()
     monkeypatch.setattr(_measurement, "_SAMPLE_POINTS", 8)
     assert _measurement.streamed_rank(x, 3, tol=1e-9, max_passes=21, rng=np.random.default_rng(0)) is None
@@ -147,8 +157,11 @@ def test_factorize_large_input_with_holes_or_inf_takes_the_general_path(stream_e
         factorize(holes)
 
 
-def test_factorize_streamed_allocates_little_besides_its_outputs(stream_everything):
-    x, _ = tracks(np.random.default_rng(8), frames=200, points=10_000)
+@pytest.mark.parametrize("layout", ["C-ordered", "(F, 2, P) in memory"])
+def test_factorize_streamed_allocates_little_and_measures_residuals_only_when_asked(stream_everything, layout):
+    x, _ = tracks(np.random.default_rng(8), frames=400, points=10_000)
+    if layout != "C-ordered":
+        x = np.ascontiguousarray(x.transpose(0, 2, 1)).transpose(0, 2, 1)  # as R[:, :2] @ S.T makes it
     factorize(x[:, :100])  # compile outside the measurement
     tracemalloc.start()
     try:
@@ -156,8 +169,30 @@ def test_factorize_streamed_allocates_little_besides_its_outputs(stream_everythi
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    # the (F, P) residuals are 0.5 of the (F, P, 2) input; a (2F, P) copy of W would be 1.0 more
-    assert rec.method == "svd" and peak - rec.observations.residual_matrix().nbytes < 0.1 * x.nbytes
+    # no copy of the (F, P, 2) input (1.0 of it), no (2F, P) W (1.0), no (F, P) residuals (0.5): the start's
+    # samples (64 rows, 1024 columns: 0.18 of the input at this size, 0.04 at 1000 x 100 000) and arrays of
+    # P numbers (the (P, 3, 3) covariances among them)
+    assert rec.method == "svd" and peak < 0.3 * x.nbytes
+    # the residual lengths, measured when asked for, are the reprojection distances, and their per-point
+    # sums those the fit measured in its last pass
+    residuals = rec.observations.residual_matrix()
+    direct = np.sqrt(((rec.project() - x) ** 2).sum(axis=2))
+    np.testing.assert_allclose(residuals, direct, rtol=1e-9, atol=1e-10)
+    np.testing.assert_allclose(rec.point_reprojection_rms, np.sqrt((direct**2).mean(axis=0)), rtol=1e-9)
+    assert rec.reprojection_rms == pytest.approx(np.sqrt(np.mean(direct**2)), rel=1e-9)
+
+
+def test_streamed_rank_reads_the_planar_layout_in_place_with_the_same_answer():
+    x, _ = tracks(np.random.default_rng(9), frames=40, points=900)
+    planar = np.ascontiguousarray(x.transpose(0, 2, 1)).transpose(0, 2, 1)
+    assert _measurement.readable_in_place(planar) and not planar.flags.c_contiguous
+    assert not _measurement.readable_in_place(np.asfortranarray(x))
+    a = _measurement.streamed_rank(x, 3, tol=1e-9, max_passes=12, rng=np.random.default_rng(0))
+    b = _measurement.streamed_rank(planar, 3, tol=1e-9, max_passes=12, rng=np.random.default_rng(0))
+    # the same numbers read in another order: the same sums, bit for bit
+    for name in ("u", "s", "vt", "centroids", "point_residual_sums"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.residual_sum == b.residual_sum and a.passes == b.passes
 
 
 def test_factorize_streamed_says_when_the_subspace_is_not_certified(stream_everything):

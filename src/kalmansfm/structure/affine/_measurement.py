@@ -3,8 +3,13 @@
 W (2F × P) stacks the image coordinates of every frame: W[2f + c, p] = positions[f, p, c]
 (row 2f is x of frame f, row 2f + 1 its y). That is the (F, P, 2) array read in another
 order, so nothing here builds W: three passes over ``positions`` give the leading rank-3
-subspace of the centred W_c = W − c 1ᵀ (c the frame centroids), its certificate and the
-per-point residuals of the rank-3 fit.
+subspace of the centred W_c = W − c 1ᵀ (c the frame centroids), its certificate and each
+point's sum of squared residuals of the rank-3 fit.
+
+``positions`` is read where it lies in either of the two row-major layouts: C-ordered
+(F, P, 2) (x and y interleaved, as a tracker stores them) or (F, 2, P) in memory — a
+C-ordered (F, 2, P) array seen through ``transpose(0, 2, 1)``, which is what rendering
+a scene as camera rows times points gives (``R[:, :2] @ S.T``), and which is W itself.
 
 1. *First pass* (one read of ``positions``): the centroids, ‖W_c‖²_F and Y = W_c Zᵀ for
    a start block Z: the ℓ = k + 1 leading right singular vectors of 64 rows of W_c drawn
@@ -17,10 +22,11 @@ per-point residuals of the rank-3 fit.
    stop when the next iterate, reduced to its k leading Ritz directions, is predicted to
    be within ``tol``.
 3. *Projection pass* (one read): with that k-column U fixed, Z = Uᵀ W_c, the residual
-   r = W_c − U Z of every entry, the per-point distances |r| of each frame (the
-   ``residuals`` of the reconstruction), Σ r² and r Zᵀ. The last two give the certificate
-   without another product and without cancellation: A U − U (Uᵀ A U) = r Zᵀ, and
-   σₖ₊₁² ≤ ‖r‖²_F. If the bound misses ``tol`` the pass is repeated with U = orth(A U).
+   r = W_c − U Z of every entry, each point's Σ_f |r_fp|² (what the points' uncertainty
+   needs), Σ r² and r Zᵀ. The last two give the certificate without another product and
+   without cancellation: A U − U (Uᵀ A U) = r Zᵀ, and σₖ₊₁² ≤ ‖r‖²_F. If the bound misses
+   ``tol`` the pass is repeated with U = orth(A U). No (F, P) array is written: the
+   distances |r_fp| themselves are recomputed only if someone asks for them.
 
 The centring happens inside the kernels (each entry minus its centroid in registers).
 Every compiled kernel has a NumPy reference below it (``*_reference``); the tests compare
@@ -52,9 +58,9 @@ class StreamedRank:
     """Rank-k fit of the centred measurement matrix of a complete (F, P, 2) array.
 
     ``u`` (2F, k) · diag(``s``) · ``vt`` (k, P) is the rank-k part of W_c; ``centroids``
-    (F, 2) the frame centroids; ``residuals`` (F, P) the distance between each observed
-    position and its rank-k fit (dtype of the input); ``residual_sum`` Σ of the squared
-    entries of W_c − U diag(s) Vᵀ; ``extra_singular_values`` the Ritz estimate of σₖ₊₁;
+    (F, 2) the frame centroids; ``point_residual_sums`` (P,) each point's Σ_f |r_fp|², r_fp
+    the difference between the observed position and its rank-k fit; ``residual_sum`` Σ of
+    the squared entries of W_c − U diag(s) Vᵀ; ``extra_singular_values`` the Ritz estimate of σₖ₊₁;
     ``angle_bound``/``certified`` as in :class:`~kalmansfm.structure.affine.lowrank.TruncatedSVD`;
     ``passes`` the number of reads of the array.
     """
@@ -64,7 +70,7 @@ class StreamedRank:
     vt: np.ndarray
     extra_singular_values: np.ndarray
     centroids: np.ndarray
-    residuals: np.ndarray
+    point_residual_sums: np.ndarray
     residual_sum: float
     angle_bound: float
     certified: bool
@@ -72,21 +78,43 @@ class StreamedRank:
     passes: int
 
 
+def readable_in_place(positions: np.ndarray) -> bool:
+    """True when the kernels read ``positions`` (F, P, 2) as it is: float32 or float64, and
+    C-ordered or (F, 2, P) in memory."""
+    return positions.dtype in (np.float32, np.float64) and _kernel_layout(positions) is not None
+
+
+def _kernel_layout(positions: np.ndarray) -> tuple[np.ndarray, bool] | None:
+    """(the C-ordered 3-D array the kernels index, planar) with planar True for (F, 2, P); None otherwise."""
+    if positions.flags.c_contiguous:
+        return positions, False
+    planar = positions.transpose(0, 2, 1)
+    if planar.flags.c_contiguous:
+        return planar, True
+    return None
+
+
 def streamed_rank(
     positions: np.ndarray, rank: int, *, tol: float, max_passes: int, rng: np.random.Generator
 ) -> StreamedRank | None:
-    """Rank-``rank`` fit of the centred W of ``positions`` (C-ordered (F, P, 2) float32/float64).
+    """Rank-``rank`` fit of the centred W of ``positions`` ((F, P, 2) float32/float64).
 
-    Returns None when ``positions`` holds a NaN or an infinity (or overflows), so that the
-    caller can take the general path.
+    Read where it lies when C-ordered or (F, 2, P) in memory (:func:`readable_in_place`);
+    any other layout is copied to C order once. Returns None when ``positions`` holds a NaN
+    or an infinity (or overflows), so that the caller can take the general path.
     """
     frames, points = positions.shape[:2]
+    layout = _kernel_layout(positions)
+    if layout is None:
+        positions = np.ascontiguousarray(positions)
+        layout = positions, False
+    data, planar = layout
     width = rank + 1
     begun = _start(positions, width, rng)
     if begun is None:
         return None
     shift, start = begun
-    sums, squares, y = _first_pass(positions, shift, start)
+    sums, squares, y = _first_pass(data, planar, shift, start)
     if not (np.isfinite(sums).all() and np.isfinite(squares).all() and np.isfinite(y).all()):
         return None
     offset = sums / points
@@ -101,7 +129,7 @@ def streamed_rank(
     passes = 1
     block = _block_points(frames)
     while True:
-        z, y = _round_trip(positions, centroids, u, block)
+        z, y = _round_trip(data, planar, centroids, u, block)
         passes += 1
         ritz = ritz_certificate(z, y.reshape(2 * frames, width), u.reshape(2 * frames, width), rank, frobenius)
         ritz_next = float(ritz.singular_values[rank]) ** 2  # Ritz estimate of σₖ₊₁²
@@ -114,9 +142,9 @@ def streamed_rank(
     u = _orthonormal(y.reshape(2 * frames, width) @ ritz.vectors[:, :rank], frames, rank)
     del z, ritz
 
-    residuals = np.empty((frames, points), dtype=positions.dtype)
+    point_sums = np.empty(points)
     while True:
-        z, ry, residual_sum = _projection_pass(positions, centroids, u, block, residuals)
+        z, ry, residual_sum = _projection_pass(data, planar, centroids, u, block, point_sums)
         passes += 1
         # A U − U (Uᵀ A U) = r Zᵀ; σₖ₊₁² ≤ ‖r‖²_F (certified whenever below λₖ)
         ritz = ritz_certificate(z, ry.reshape(2 * frames, rank), None, rank, frobenius, upper_next=residual_sum,
@@ -132,7 +160,7 @@ def streamed_rank(
         vt=ritz.right,
         extra_singular_values=np.sqrt([max(ritz_next, 0.0)]),
         centroids=centroids,
-        residuals=residuals,
+        point_residual_sums=point_sums,
         residual_sum=residual_sum,
         angle_bound=ritz.bound,
         certified=ritz.certified,
@@ -196,9 +224,9 @@ _JIT = {"cache": True, "fastmath": {"reassoc", "contract", "nsz", "arcp"}, "nogi
 
 
 @numba.njit(**_JIT)
-def _first_pass(x, shift, start):  # pragma: no cover - compiled; see _first_pass_reference
+def _first_pass(x, planar, shift, start):  # pragma: no cover - compiled; see _first_pass_reference
     """Row sums and squared norms of D = W − s 1ᵀ (per frame and coordinate) and D Zᵀ."""
-    frames, points = x.shape[0], x.shape[1]
+    frames, points = x.shape[0], start.shape[1]
     width = start.shape[0]
     sums = np.zeros((frames, 2))
     squares = np.zeros((frames, 2))
@@ -209,7 +237,7 @@ def _first_pass(x, shift, start):  # pragma: no cover - compiled; see _first_pas
     for f in range(frames):
         for p0 in range(0, points, chunk):
             n = min(chunk, points - p0)
-            _load_row(x, shift, f, p0, n, bx, by)
+            _load_row(x, planar, shift, f, p0, n, bx, by)
             a0 = 0.0
             a1 = 0.0
             b0 = 0.0
@@ -228,19 +256,28 @@ def _first_pass(x, shift, start):  # pragma: no cover - compiled; see _first_pas
 
 
 def _first_pass_reference(x, shift, start):
+    """The (F, P, 2) ``x`` of any layout."""
     d = x - shift[:, None, :]
     return d.sum(axis=1), (d * d).sum(axis=1), np.einsum("fpc,jp->fcj", d, start)
 
 
 @numba.njit(**_JIT, inline="always")
-def _load_row(x, centre, f, p0, n, bx, by):  # pragma: no cover - compiled
-    """bx, by = x and y of points p0 … p0+n of frame f minus ``centre[f]`` (de-interleaved)."""
+def _load_row(x, planar, centre, f, p0, n, bx, by):  # pragma: no cover - compiled
+    """bx, by = x and y of points p0 … p0+n of frame f minus ``centre[f]`` (de-interleaved unless
+    ``planar``: then ``x`` is (F, 2, P) and its rows are copied as they are)."""
     cx = centre[f, 0]
     cy = centre[f, 1]
-    segment = x[f, p0 : p0 + n]  # indexed from 0 below: a plain stride-2 load that LLVM vectorizes
-    for q in range(n):
-        bx[q] = segment[q, 0] - cx
-        by[q] = segment[q, 1] - cy
+    if planar:
+        xs = x[f, 0, p0 : p0 + n]
+        ys = x[f, 1, p0 : p0 + n]
+        for q in range(n):
+            bx[q] = xs[q] - cx
+            by[q] = ys[q] - cy
+    else:
+        segment = x[f, p0 : p0 + n]  # indexed from 0 below: a plain stride-2 load that LLVM vectorizes
+        for q in range(n):
+            bx[q] = segment[q, 0] - cx
+            by[q] = segment[q, 1] - cy
 
 
 @numba.njit(**_JIT, inline="always")
@@ -258,7 +295,7 @@ def _add_products(bx, by, z, p0, n, y, f):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT, inline="always")
-def _load_block(x, centroids, u, p0, n, block, z):  # pragma: no cover - compiled
+def _load_block(x, planar, centroids, u, p0, n, block, z):  # pragma: no cover - compiled
     """Copy points p0 … p0+n of every frame, centred, into ``block`` (F, 2, n) and set
     z[:, p0:p0+n] = Uᵀ W_c for those columns, while each row is in L1."""
     frames = x.shape[0]
@@ -267,7 +304,7 @@ def _load_block(x, centroids, u, p0, n, block, z):  # pragma: no cover - compile
     for f in range(frames):
         bx = block[f, 0]
         by = block[f, 1]
-        _load_row(x, centroids, f, p0, n, bx, by)
+        _load_row(x, planar, centroids, f, p0, n, bx, by)
         for j in range(width):
             a0 = u[f, 0, j]
             a1 = u[f, 1, j]
@@ -277,16 +314,16 @@ def _load_block(x, centroids, u, p0, n, block, z):  # pragma: no cover - compile
 
 
 @numba.njit(**_JIT)
-def _round_trip(x, centroids, u, block_points):  # pragma: no cover - compiled; see _round_trip_reference
+def _round_trip(x, planar, centroids, u, block_points):  # pragma: no cover - compiled; see _round_trip_reference
     """Z = Uᵀ W_c (width, P) and Y = W_c Zᵀ (F, 2, width), one column block at a time."""
-    frames, points = x.shape[0], x.shape[1]
+    frames, points = x.shape[0], x.shape[2] if planar else x.shape[1]
     width = u.shape[2]
     z = np.empty((width, points))
     y = np.zeros((frames, 2, width))
     block = np.empty((frames, 2, block_points))
     for p0 in range(0, points, block_points):
         n = min(block_points, points - p0)
-        _load_block(x, centroids, u, p0, n, block, z)
+        _load_block(x, planar, centroids, u, p0, n, block, z)
         for f in range(frames):
             _add_products(block[f, 0], block[f, 1], z, p0, n, y, f)
     return z, y
@@ -300,9 +337,10 @@ def _round_trip_reference(x, centroids, u):
 
 
 @numba.njit(**_JIT)
-def _projection_pass(x, centroids, u, block_points, residuals):  # pragma: no cover - compiled
-    """Z = Uᵀ W_c; r = W_c − U Z: writes |r| per (frame, point), returns Z, r Zᵀ and Σ r²."""
-    frames, points = x.shape[0], x.shape[1]
+def _projection_pass(x, planar, centroids, u, block_points, point_sums):  # pragma: no cover - compiled
+    """Z = Uᵀ W_c; r = W_c − U Z: writes Σ_f |r_fp|² of each point p to ``point_sums``, returns Z,
+    r Zᵀ and Σ r²."""
+    frames, points = x.shape[0], x.shape[2] if planar else x.shape[1]
     width = u.shape[2]
     z = np.empty((width, points))
     ry = np.zeros((frames, 2, width))
@@ -310,7 +348,9 @@ def _projection_pass(x, centroids, u, block_points, residuals):  # pragma: no co
     total = 0.0
     for p0 in range(0, points, block_points):
         n = min(block_points, points - p0)
-        _load_block(x, centroids, u, p0, n, block, z)
+        _load_block(x, planar, centroids, u, p0, n, block, z)
+        sums = point_sums[p0 : p0 + n]
+        sums[:] = 0.0
         for f in range(frames):
             rx = block[f, 0]  # overwritten by the residual of the row
             rw = block[f, 1]
@@ -322,12 +362,11 @@ def _projection_pass(x, centroids, u, block_points, residuals):  # pragma: no co
                     rx[q] -= a0 * zj[q]
                     rw[q] -= a1 * zj[q]
             _add_products(rx, rw, z, p0, n, ry, f)
-            out = residuals[f, p0 : p0 + n]
             acc = 0.0
             for q in range(n):
                 d = rx[q] * rx[q] + rw[q] * rw[q]
                 acc += d
-                out[q] = np.sqrt(d)
+                sums[q] += d
             total += acc
     return z, ry, total
 
@@ -338,5 +377,5 @@ def _projection_pass_reference(x, centroids, u):
     basis = u.reshape(2 * frames, -1)
     z = basis.T @ w
     r = w - basis @ z
-    distances = np.sqrt((r.reshape(frames, 2, points) ** 2).sum(axis=1))
-    return z, (r @ z.T).reshape(frames, 2, -1), float(np.sum(r * r)), distances
+    point_sums = (r.reshape(frames, 2, points) ** 2).sum(axis=(0, 1))
+    return z, (r @ z.T).reshape(frames, 2, -1), float(np.sum(r * r)), point_sums

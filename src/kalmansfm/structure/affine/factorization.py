@@ -11,8 +11,8 @@ Complete data, no weights (the report's algorithm):
 1. centre each frame: W = x − t with t_f the mean of frame f's points;
 2. rank-3 truncation W ≈ U′ D′ V′ᵀ (LAPACK for small W; for large W the
    certified subspace iteration of :mod:`~kalmansfm.structure.affine._measurement`, which
-   reads the (F, P, 2) array itself — W is never built, the centring happens inside
-   its passes and its last pass also measures the residuals);
+   reads the (F, P, 2) array itself where it lies — W is never built, the centring happens
+   inside its passes and its last pass also sums each point's squared residuals);
 3. affine factors R* = U′ D′^½ and S* = D′^½ V′ᵀ;
 4. metric upgrade: the symmetric A = Q Qᵀ (6 unknowns) from the linear
    least-squares system i*ᵀ A i* = 1, j*ᵀ A j* = 1, i*ᵀ A j* = 0 over all frames;
@@ -20,8 +20,8 @@ Complete data, no weights (the report's algorithm):
 5. gauge: rotate so that frame 0's rows are the camera x and y axes.
 
 Missing data (NaN) or weights: the same model is fitted by weighted alternating
-least squares (ALS) over the observed entries only, with the translation t_f as
-unknowns (a frame centroid is meaningless when points are missing):
+least squares (ALS, :mod:`~kalmansfm.structure.affine._als`) over the observed entries only,
+with the translation t_f as unknowns (a frame centroid is meaningless when points are missing):
 
 1. initialise from the largest complete block of frames × points (found
    greedily by dropping the frame or the points with the most holes), factored as
@@ -39,15 +39,25 @@ the rest) come out as NaN and are named in ``warnings``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ...errors import InvalidInputError, NotEnoughDataError
 from ..._validation import as_float_array, check_count
+from ._als import row_blocks, weighted_als
 from .lowrank import truncated_svd
 
 __all__ = ["DEFAULT_MAX_ITERATIONS", "AffineFactors", "factor_affine", "metric_upgrade"]
+
+# The large sums of a factorization are numba kernels; its BLAS and LAPACK calls are small or
+# medium (SVDs of a few hundred rows, thin products): BLAS threads only add synchronisation, and on
+# a busy machine waiting for them costs far more than the work (measured at load 7 on the 2 shared
+# cores: an 80 × 700 SVD 0.3–3.6 s with 2 OpenBLAS threads, 0.01 s with one).
+single_threaded_blas = threadpool_limits.wrap(limits=1, user_api="blas")
 
 #: Default cap on the alternating least-squares iterations (missing data or weights).
 DEFAULT_MAX_ITERATIONS = 500
@@ -64,7 +74,7 @@ _FLAT_RATIO = 1e-3
 _METRIC_CONDITION = 1e7
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class AffineFactors:
     """Shape and affine camera motion fitted to image tracks: what :func:`factor_affine` returns.
 
@@ -83,8 +93,12 @@ class AffineFactors:
         measurement matrix (with missing data: of the matrix completed by the model).
     residual_rms : float — RMS over observed (frame, point) pairs of the 2D distance
         between observed and reprojected positions, in pixels.
-    residuals : (F, P) float — those distances; NaN where not observed. float32 when
-        ``positions`` was a float32 array, else float64.
+    point_residual_sums : (P,) float — each point's sum over the frames that used it of the
+        squared distances, pixels² (0 for a point not reconstructed).
+    residuals : (F, P) float — the distances themselves; NaN where not observed. float32 when
+        ``positions`` was a float32 array, else float64. For large complete input they are
+        computed from ``positions`` and the model on first access (an array half the size
+        of the input that the fit itself does not need).
     observed : (F, P) bool — which entries were used (for large complete input, where all
         were, a read-only all-True view that takes no memory).
     warnings : tuple of str — degeneracies, fallbacks and dropped frames/points.
@@ -99,12 +113,25 @@ class AffineFactors:
     translation: np.ndarray
     singular_values: np.ndarray
     residual_rms: float
-    residuals: np.ndarray
+    point_residual_sums: np.ndarray
     observed: np.ndarray
     warnings: tuple[str, ...]
     method: str
     iterations: int
     metric_matrix: np.ndarray
+    # the (F, P) distances when the fit measured them; else the positions to measure them from
+    _residuals: np.ndarray | None = field(default=None, repr=False)
+    _positions: np.ndarray | None = field(default=None, repr=False)
+    _residual_dtype: np.dtype = field(default=np.dtype(np.float64), repr=False)
+
+    @cached_property
+    def residuals(self) -> np.ndarray:
+        """(F, P) distances between observed and reprojected positions (see the class notes)."""
+        if self._residuals is not None:
+            return self._residuals
+        assert self._positions is not None
+        return _reprojection_residuals(self._positions, None, self.motion, self.points, self.translation,
+                                       self._residual_dtype).residuals
 
     def reprojected(self) -> np.ndarray:
         """(F, P, 2) image positions predicted by the model, M_f S_p + t_f."""
@@ -112,6 +139,7 @@ class AffineFactors:
 
 
 
+@single_threaded_blas
 def factor_affine(
     positions: np.ndarray,
     *,
@@ -119,6 +147,7 @@ def factor_affine(
     max_iterations: int = DEFAULT_MAX_ITERATIONS,
     tol: float = 1e-10,
     rng: np.random.Generator | int | None = 0,
+    progress: Callable[[int, int], object] | None = None,
 ) -> AffineFactors:
     """Fit 3D shape and affine camera motion to point tracks (Tomasi–Kanade); the core of :func:`~kalmansfm.structure.factorize`.
 
@@ -127,17 +156,22 @@ def factor_affine(
     positions : (F, P, 2) float — x = column, y = row of point p in frame f; NaN where the
         point is not observed. Needs F ≥ 3 frames and P ≥ 4 points. Only read, never
         modified. Large complete input without weights (2F·P > 2·10⁶) is used where it
-        lies: a C-ordered float64 or float32 array is neither copied nor converted (float32
-        stays float32 in memory; the arithmetic is float64), and no 2F × P matrix is made,
-        so the peak memory beyond the input is the (F, P) ``residuals`` of the result (0.5×
-        the input in float64, plus about 3 % working arrays). Other dtypes or layouts are converted
-        once. No ``copy=False`` option is needed: there is no copy to avoid.
+        lies: a float64 or float32 array that is C-ordered or (F, 2, P) in memory (as
+        ``(R[:, :2] @ S.T).transpose(0, 2, 1)`` makes it) is neither copied nor converted
+        (float32 stays float32 in memory; the arithmetic is float64), and neither a 2F × P
+        matrix nor an (F, P) array is made: the peak memory beyond the input is the start's
+        samples and a few arrays of P numbers (5 % of the input at 1000 × 100 000). Other
+        dtypes or layouts are converted once. No ``copy=False`` option is needed: there is
+        no copy to avoid.
     weights : (F, P) or (F, P, 2) float ≥ 0, optional — per-entry least-squares weights,
         typically 1 / σ² from the tracker's posterior standard deviations. A zero weight
         ignores the entry. Without weights every observation counts equally.
     max_iterations : ALS iteration cap (missing data or weights).
     tol : ALS stops when the weighted cost decreases by less than this fraction.
     rng : seed or generator for the randomized SVD of large complete inputs.
+    progress : callable, optional — called after each ALS iteration with (iterations done,
+        ``max_iterations``), e.g. to drive a progress bar; the ALS usually stops well before
+        ``max_iterations``. Not called by the closed form (no iterations). Default: silent.
 
     Returns
     -------
@@ -155,9 +189,10 @@ def factor_affine(
     The closed form (no NaN, no weights) is the report's algorithm; otherwise the fit is
     weighted alternating least squares over the observed entries (see the module notes).
     For large complete input the rank-3 subspace is certified to 1e-9 rad (Davis–Kahan
-    bound) and the residuals come from the same pass over ``positions`` (the reprojection
-    M S + t equals the rank-3 part of W plus the centroids). The first such call in a
-    new environment compiles three numba kernels (a few seconds, cached on disk).
+    bound) and each point's squared residuals are summed in the same pass over ``positions``
+    (the reprojection M S + t equals the rank-3 part of W plus the centroids). The first
+    such call in a new environment compiles three numba kernels (a few seconds, cached on
+    disk); so does the first ALS of large input (2F·P > 2·10⁶; two kernels).
     Degenerate input is flagged in ``warnings`` rather than raised: a rank-2 W (coplanar
     points, or no rotation out of the image plane), a flat shape, a metric system too
     ill-conditioned to fix depth, and a non-positive-definite A (replaced by the nearest
@@ -190,7 +225,7 @@ def factor_affine(
     notes: list[str] = []
     fit = _streamed_closed_form(positions, weights, rng, notes)
     if fit is None:
-        fit = _general_fit(positions, weights, max_iterations, tol, rng, notes)
+        fit = _general_fit(positions, weights, max_iterations, tol, rng, notes, progress)
     f_ok, p_ok, motion_aff, shape_aff = fit.f_ok, fit.p_ok, fit.motion, fit.shape
     if not fit.singular_values[0] > 0:
         raise NotEnoughDataError(
@@ -225,31 +260,36 @@ def factor_affine(
     full_translation[f_index] = translation[f_ok]
     full_points[p_index] = shape[p_ok]
 
-    if fit.residuals is None:
-        residuals, used, residual_rms = _reprojection_residuals(
-            fit.positions, fit.observed, full_motion, full_points, full_translation
-        )
-        residuals = residuals.astype(fit.residual_dtype, copy=False)
+    if fit.point_residual_sums is None:
+        measured = _reprojection_residuals(fit.positions, fit.observed, full_motion, full_points, full_translation,
+                                           fit.residual_dtype)
+        residuals, used, point_sums = measured.residuals, measured.used, measured.point_sums
+        residual_rms = measured.rms
+        positions_kept = None
     else:
         # Complete data: the reprojection M S + t is the rank-3 part of W plus the centroids
-        # (the upgrade and the gauge only re-parametrise it), so the distances measured in
-        # the SVD's last pass are the reprojection residuals.
+        # (the upgrade and the gauge only re-parametrise it), so the squared distances summed
+        # in the SVD's last pass are those of the reprojection residuals. The distances
+        # themselves are measured only if asked for (AffineFactors.residuals).
         # every entry was used: a read-only all-True view rather than another (F, P) array
-        residuals, used = fit.residuals, np.broadcast_to(np.True_, (frames, points))
-        residual_rms = float(np.sqrt(fit.residual_sum / residuals.size))
-    method, iterations, sv = fit.method, fit.iterations, fit.singular_values
+        residuals, used, point_sums = None, np.broadcast_to(np.True_, (frames, points)), fit.point_residual_sums
+        residual_rms = float(np.sqrt(fit.residual_sum / (frames * points)))
+        positions_kept = fit.positions
     return AffineFactors(
         points=full_points,
         motion=full_motion,
         translation=full_translation,
-        singular_values=sv,
+        singular_values=fit.singular_values,
         residual_rms=residual_rms,
-        residuals=residuals,
+        point_residual_sums=point_sums,
         observed=used,
         warnings=tuple(notes),
-        method=method,
-        iterations=iterations,
+        method=fit.method,
+        iterations=fit.iterations,
         metric_matrix=a_matrix,
+        _residuals=residuals,
+        _positions=positions_kept,
+        _residual_dtype=fit.residual_dtype,
     )
 
 
@@ -257,7 +297,7 @@ def factor_affine(
 class _AffineFit:
     """Affine factors R* (``motion``), S* (``shape``) and ``translation`` on the usable frames
     (``use_f``) × points (``use_p``) of ``positions``, of which ``f_ok`` / ``p_ok`` were reached.
-    ``residuals`` / ``residual_sum`` are set when the fit already measured them (complete data)."""
+    ``point_residual_sums`` / ``residual_sum`` are set when the fit already measured them (complete data)."""
 
     positions: np.ndarray
     observed: np.ndarray | None
@@ -272,7 +312,7 @@ class _AffineFit:
     method: str
     iterations: int
     residual_dtype: np.dtype
-    residuals: np.ndarray | None = None
+    point_residual_sums: np.ndarray | None = None
     residual_sum: float = 0.0
 
 
@@ -280,8 +320,9 @@ def _streamed_closed_form(positions: object, weights: object, rng: object, notes
     """The closed form straight from a large complete (F, P, 2) array, or None (general path).
 
     W is never built: :func:`~kalmansfm.structure.affine._measurement.streamed_rank` reads
-    ``positions`` three times (a float32 array stays float32 in memory; the sums are
-    float64). Returns None for small input, weights, or as soon as a NaN or an infinity
+    ``positions`` three times where it lies (a float32 array stays float32 in memory; the
+    sums are float64; other dtypes, and layouts the kernels do not read, are converted
+    once). Returns None for small input, weights, or as soon as a NaN or an infinity
     is met.
     """
     if weights is not None or not isinstance(positions, np.ndarray) or positions.ndim != 3:
@@ -292,10 +333,10 @@ def _streamed_closed_form(positions: object, weights: object, rng: object, notes
     if coordinates != 2 or frames < 3 or points < 4 or 2 * frames * points <= _LAPACK_LIMIT:
         return None
     # Imported here: numba (≈ 0.2 s to import) is only needed once an input is this large.
-    from ._measurement import streamed_rank
+    from ._measurement import readable_in_place, streamed_rank
 
     dtype = positions.dtype if positions.dtype in (np.float32, np.float64) else np.dtype(np.float64)
-    x = np.ascontiguousarray(positions, dtype=dtype)  # no copy for a C-ordered float32/float64 array
+    x = positions if readable_in_place(positions) else np.ascontiguousarray(positions, dtype=dtype)
     fit = streamed_rank(x, 3, tol=_SUBSPACE_TOL, max_passes=12, rng=np.random.default_rng(rng))
     if fit is None:
         return None
@@ -310,12 +351,13 @@ def _streamed_closed_form(positions: object, weights: object, rng: object, notes
         positions=x, observed=None, use_f=every_f, use_p=every_p, f_ok=every_f, p_ok=every_p,
         motion=(fit.u * root).reshape(frames, 2, 3), shape=fit.vt.T * root, translation=fit.centroids,
         singular_values=np.concatenate([fit.s, fit.extra_singular_values]), method="svd", iterations=0,
-        residual_dtype=dtype, residuals=fit.residuals, residual_sum=fit.residual_sum,
+        residual_dtype=dtype, point_residual_sums=fit.point_residual_sums, residual_sum=fit.residual_sum,
     )
 
 
 def _general_fit(
-    positions: object, weights: object, max_iterations: int, tol: float, rng: object, notes: list[str]
+    positions: object, weights: object, max_iterations: int, tol: float, rng: object, notes: list[str],
+    progress: Callable[[int, int], object] | None,
 ) -> _AffineFit:
     """Validation, usable frames and points, then the closed form or weighted ALS."""
     residual_dtype = np.dtype(np.float32 if getattr(positions, "dtype", None) == np.float32 else np.float64)
@@ -336,8 +378,8 @@ def _general_fit(
         method, iterations = "svd", 0
         f_ok, p_ok = np.ones(int(use_f.sum()), bool), np.ones(int(use_p.sum()), bool)
     else:
-        motion_aff, shape_aff, translation, iterations, f_ok, p_ok = _weighted_als(
-            xs, None if w is None else subset(w), obs, max_iterations, tol, notes
+        motion_aff, shape_aff, translation, iterations, f_ok, p_ok = weighted_als(
+            xs, None if w is None else subset(w), obs, max_iterations, tol, notes, progress
         )
         method = "als"
         sv = _completed_singular_values(xs, obs, motion_aff, shape_aff, translation, f_ok, p_ok, rng)
@@ -431,7 +473,7 @@ def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarra
     # Observed = both coordinates finite; checked a block of frames at a time so that no
     # full-size temporary is made (positions can be gigabytes).
     observed = np.empty((frames, points), bool)
-    for block in _frame_blocks(frames, points):
+    for block in row_blocks(frames, points):
         chunk = x[block]
         np.logical_and(np.isfinite(chunk[..., 0]), np.isfinite(chunk[..., 1]), out=observed[block])
         if not observed[block].all() and np.isinf(chunk).any():
@@ -456,12 +498,6 @@ def _validate(positions: object, weights: object) -> tuple[np.ndarray, np.ndarra
         where = tuple(int(i) for i in np.argwhere(bad)[0])
         raise InvalidInputError(f"weights must be finite and >= 0 where positions are observed; entry {where} is {w[where]}")
     return x, np.where(finite_obs, w, 0.0), observed
-
-
-def _frame_blocks(frames: int, points: int, entries: int = 1 << 18) -> list[slice]:
-    """Slices of consecutive frames holding about ``entries`` points each (cache-sized work)."""
-    step = max(1, entries // max(points, 1))
-    return [slice(start, min(start + step, frames)) for start in range(0, frames, step)]
 
 
 def _usable(observed: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -513,7 +549,7 @@ def _centred_measurement_matrix(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     frames, points = x.shape[:2]
     w = np.empty((frames, 2, points))
     centroids = np.empty((frames, 2))
-    for block in _frame_blocks(frames, points):
+    for block in row_blocks(frames, points):
         rows = w[block]
         np.copyto(rows, x[block].transpose(0, 2, 1))
         centroids[block] = rows.mean(axis=2)
@@ -521,175 +557,32 @@ def _centred_measurement_matrix(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w.reshape(2 * frames, points), centroids.reshape(-1)
 
 
-def _weighted_als(
-    x: np.ndarray, w: np.ndarray | None, observed: np.ndarray, max_iterations: int, tol: float, notes: list[str]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
-    """Weighted ALS over the observed entries (``w`` None: unit weights).
+@dataclass(frozen=True)
+class _Residuals:
+    """Distances |M_f S_p + t_f − x_fp| (F, P), NaN where unused; the mask of used entries (None:
+    all were); each point's sum of their squares; their RMS."""
 
-    Works in the (2F, P) layout of W (row 2f is x of frame f, row 2f+1 its y) with two
-    full-size arrays (three with weights): the observed values (0 where unobserved) and the
-    weights; everything else is computed a block of rows at a time or as a thin product.
-    """
-    frames, points = observed.shape
-    values = _rows_where(x, observed)
-    unit = _rows_where(None, observed)  # 1 where observed: the initialisation's weights
-    motion, shape, translation, f_ok, p_ok = _initialise(values, unit, observed)
-    if w is None:
-        weight, weighted_values = unit, values  # 1 · v = v exactly, and v = 0 where w = 0
-    else:
-        weight = _rows_where(w, observed)
-        weighted_values = weight * values
-    # Frames and points the initialisation did not reach take no part (in place).
-    known_rows = np.repeat(f_ok, 2)
-    for array in (weight, weighted_values):
-        array[~known_rows] = 0.0
-        array[:, ~p_ok] = 0.0
-    total = float(np.einsum("ij,ij->", weighted_values, values))
-    blocks = _frame_blocks(2 * frames, points)
-
-    def cost(motion: np.ndarray, shape: np.ndarray, translation: np.ndarray) -> float:
-        # Σ w (v − m·s − t)², a block of rows at a time
-        result = 0.0
-        for rows in blocks:
-            difference = motion[rows] @ shape.T
-            difference += translation[rows, None]
-            difference -= values[rows]
-            np.square(difference, out=difference)
-            result += float(np.einsum("ij,ij->", weight[rows], difference))
-        return result
-
-    previous = cost(motion, shape, translation)
-    iterations = 0
-    converged = previous <= 1e-30 * max(total, 1.0)
-    while not converged and iterations < max_iterations:
-        shape = _solve_points(weight, weighted_values, motion, translation, shape)
-        motion, translation = _solve_frames(weight, weighted_values, shape, motion, translation)
-        iterations += 1
-        current = cost(motion, shape, translation)
-        converged = previous - current <= tol * previous or current <= 1e-30 * max(total, 1.0)
-        previous = current
-    if not converged:
-        notes.append(f"alternating least squares stopped after {iterations} iterations without converging")
-    return motion.reshape(frames, 2, 3), shape, translation.reshape(frames, 2), iterations, f_ok, p_ok
+    residuals: np.ndarray
+    used: np.ndarray | None
+    point_sums: np.ndarray
+    rms: float
 
 
-def _rows_where(a: np.ndarray | None, observed: np.ndarray) -> np.ndarray:
-    """(2F, P) float64: a[f, p, c] at row 2f + c (1 when ``a`` is None) where observed, else 0.
-
-    Built a block of frames at a time, so the only full-size array is the result.
-    """
-    frames, points = observed.shape
-    out = np.zeros((frames, 2, points))
-    for block in _frame_blocks(frames, points):
-        seen = observed[block][:, None, :]
-        if a is None:
-            np.copyto(out[block], seen)
-        else:
-            np.copyto(out[block], a[block].transpose(0, 2, 1), where=seen)
-    return out.reshape(2 * frames, points)
-
-
-def _solve_points(weight: np.ndarray, weighted_values: np.ndarray, motion: np.ndarray, translation: np.ndarray,
-                  fallback: np.ndarray) -> np.ndarray:
-    """Each S_p = argmin Σ_rows w (x − m·S_p − t)²: a batched 3 × 3 system per point."""
-    outer = (motion[:, :, None] * motion[:, None, :]).reshape(-1, 9)  # m mᵀ per image row
-    normal = (weight.T @ outer).reshape(-1, 3, 3)
-    rhs = weighted_values.T @ motion - weight.T @ (translation[:, None] * motion)
-    return _batched_solve(normal, rhs, fallback)
-
-
-def _solve_frames(weight: np.ndarray, weighted_values: np.ndarray, shape: np.ndarray, motion: np.ndarray,
-                  translation: np.ndarray, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Each image row [m | t] = argmin Σ_p w (x − m·S_p − t)²: a batched 4 × 4 system per row.
-
-    ``columns`` (P,) bool, optional: only these points count (the others' [S_p 1] rows are zeroed).
-    """
-    homogeneous = np.hstack([shape, np.ones((shape.shape[0], 1))])
-    if columns is not None:
-        homogeneous[~columns] = 0.0
-    outer = (homogeneous[:, :, None] * homogeneous[:, None, :]).reshape(-1, 16)
-    normal = (weight @ outer).reshape(-1, 4, 4)
-    rhs = weighted_values @ homogeneous
-    solution = _batched_solve(normal, rhs, np.hstack([motion, translation[:, None]]))
-    return solution[:, :3], solution[:, 3]
-
-
-def _batched_solve(normal: np.ndarray, rhs: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Solve normal @ s = rhs per batch entry; singular systems keep ``fallback``."""
-    n = normal.shape[-1]
-    trace = np.trace(normal, axis1=1, axis2=2)
-    ok = trace > 0
-    # A relative ridge of 1e-13 keeps exactly singular systems solvable without biasing others.
-    regularised = normal + (1e-13 * trace)[:, None, None] * np.eye(n)
-    out = fallback.copy()
-    if ok.any():
-        out[ok] = np.linalg.solve(regularised[ok], rhs[ok][:, :, None])[:, :, 0]
-    return out
-
-
-def _initialise(values: np.ndarray, unit: np.ndarray, observed: np.ndarray):
-    """Affine factors from the largest complete block, extended to all reachable frames and points."""
-    frames, points = observed.shape
-    rows, cols = _complete_block(observed)
-    motion = np.zeros((2 * frames, 3))
-    translation = np.zeros(2 * frames)
-    shape = np.zeros((points, 3))
-    f_ok = np.zeros(frames, bool)
-    p_ok = np.zeros(points, bool)
-    if rows.sum() >= 3 and cols.sum() >= 4:
-        block_rows = np.repeat(rows, 2)
-        block = values[np.ix_(block_rows, cols)]
-        centroid = block.mean(axis=1)
-        u, s, vt = np.linalg.svd(block - centroid[:, None], full_matrices=False)
-        root = np.sqrt(s[:3])
-        motion[block_rows] = u[:, :3] * root
-        translation[block_rows] = centroid
-        shape[cols] = vt[:3].T * root
-        f_ok[rows], p_ok[cols] = True, True
-    else:
-        # No usable complete block: impute frame means and take the rank-3 part.
-        rows_of_obs = np.repeat(observed, 2, axis=0)
-        counts = rows_of_obs.sum(axis=1)
-        centroid = values.sum(axis=1) / np.maximum(counts, 1)
-        filled = np.where(rows_of_obs, values, centroid[:, None]) - centroid[:, None]
-        u, s, vt = np.linalg.svd(filled, full_matrices=False)
-        root = np.sqrt(s[:3])
-        return u[:, :3] * root, vt[:3].T * root, centroid, observed.sum(axis=1) >= 4, observed.sum(axis=0) >= 2
-    # Unit weights; values are 0 where unobserved, so they are also the weighted values.
-    # Frames (points) not yet known have zero motion (shape) rows and so add nothing to a
-    # point's (frame's) normal equations; each solve covers all points (rows) and only the
-    # new ones are kept, so no masked copy of the full-size arrays is made.
-    while True:
-        seen_by_known = (observed & f_ok[:, None]).sum(axis=0)
-        new_p = ~p_ok & (seen_by_known >= 2)
-        if new_p.any():
-            shape[new_p] = _solve_points(unit, values, motion, translation, shape)[new_p]
-            p_ok |= new_p
-        seen_known = (observed & p_ok[None, :]).sum(axis=1)
-        new_f = ~f_ok & (seen_known >= 4)
-        if new_f.any():
-            rows_new = np.repeat(new_f, 2)
-            m, t = _solve_frames(unit, values, shape, motion, translation, columns=p_ok)
-            motion[rows_new], translation[rows_new] = m[rows_new], t[rows_new]
-            f_ok |= new_f
-        if not new_p.any() and not new_f.any():
-            break
-    return motion, shape, translation, f_ok, p_ok
-
-
-def _reprojection_residuals(
-    x: np.ndarray, observed: np.ndarray, motion: np.ndarray, points: np.ndarray, translation: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Distances |M_f S_p + t_f − x_fp| (F, P), NaN where unused; the mask of used entries; their RMS.
+def _reprojection_residuals(x: np.ndarray, observed: np.ndarray | None, motion: np.ndarray, points: np.ndarray,
+                            translation: np.ndarray, dtype: np.dtype) -> _Residuals:
+    """The reprojection residuals of the entries of ``x`` that are ``observed`` (None: all), as ``dtype``.
 
     Computed a block of frames at a time, so no (F, P, 2) temporary is made.
     """
-    frames, n_points = observed.shape
-    residuals = np.empty((frames, n_points))
-    used = np.empty((frames, n_points), bool)
+    frames, n_points = x.shape[:2]
+    blocks = row_blocks(frames, n_points)
+    residuals = np.empty((frames, n_points), dtype)
+    used = None if observed is None else np.empty((frames, n_points), bool)
+    point_sums = np.zeros(n_points)
+    scratch = np.empty((blocks[0].stop - blocks[0].start, n_points))
     total, count = 0.0, 0
     points_t = np.ascontiguousarray(points.T)
-    for block in _frame_blocks(frames, n_points):
+    for block in blocks:
         # predicted rows M_f S + t_f of the block, (B, 2, P), as three broadcast multiply-adds: many
         # tiny GEMMs would each wake the BLAS threads, which costs more than the arithmetic
         rows = motion[block][:, :, :, None]
@@ -699,49 +592,24 @@ def _reprojection_residuals(
         difference += translation[block, :, None]
         difference -= x[block].transpose(0, 2, 1)
         np.square(difference, out=difference)
-        squared = np.add(difference[:, 0], difference[:, 1], out=residuals[block])
+        squared = np.add(difference[:, 0], difference[:, 1], out=scratch[: len(difference)])
         block_total = float(squared.sum())
-        if np.isfinite(block_total) and observed[block].all():  # the usual case: nothing to mask
-            used[block] = True
+        if np.isfinite(block_total) and (observed is None or observed[block].all()):  # the usual case
+            if used is not None:
+                used[block] = True
             total += block_total
             count += squared.size
+            point_sums += squared.sum(axis=0)
         else:
-            ok = observed[block] & np.isfinite(squared)
-            used[block] = ok
+            ok = np.isfinite(squared) if observed is None else observed[block] & np.isfinite(squared)
+            if used is not None:
+                used[block] = ok
             total += float(np.sum(squared, where=ok))
             count += int(ok.sum())
+            point_sums += np.sum(squared, axis=0, where=ok)
             squared[~ok] = np.nan
-        np.sqrt(squared, out=squared)
-    return residuals, used, float(np.sqrt(total / count)) if count else float("nan")
-
-
-def _complete_block(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Greedy search for a large all-observed block of frames × points.
-
-    Repeatedly drop every point whose missing fraction is larger than that of the worst
-    frame, else the worst frame; the counts are updated incrementally.
-    """
-    rows = np.ones(observed.shape[0], bool)
-    cols = np.ones(observed.shape[1], bool)
-    missing = ~observed
-    row_missing = missing.sum(axis=1).astype(np.int64)
-    col_missing = missing.sum(axis=0).astype(np.int64)
-    while rows.sum() >= 3 and cols.sum() >= 4:
-        n_rows, n_cols = int(rows.sum()), int(cols.sum())
-        row_frac = np.where(rows, row_missing / n_cols, -1.0)
-        col_frac = np.where(cols, col_missing / n_rows, -1.0)
-        worst_row = float(row_frac.max())
-        if worst_row <= 0 and col_frac.max() <= 0:
-            break
-        drop_cols = col_frac > worst_row
-        if drop_cols.any():
-            cols &= ~drop_cols
-            row_missing -= missing[:, drop_cols].sum(axis=1)
-        else:
-            r = int(np.argmax(row_frac))
-            rows[r] = False
-            col_missing -= missing[r]
-    return rows, cols
+        np.sqrt(squared, out=residuals[block])
+    return _Residuals(residuals, used, point_sums, float(np.sqrt(total / count)) if count else float("nan"))
 
 
 def _completed_singular_values(x, observed, motion, shape, translation, f_ok, p_ok, rng) -> np.ndarray:

@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
+
 import numpy as np
 
 from ..geometry.orthographic import camera_rotation_matrices
 from ..reconstruction import AFFINE_GAUGE, AffineDetails, FrameStatus, NoiseEstimate, Observations, Reconstruction
-from .factorization import DEFAULT_MAX_ITERATIONS, AffineFactors, factor_affine
+from .factorization import DEFAULT_MAX_ITERATIONS, AffineFactors, factor_affine, single_threaded_blas
 from .uncertainty import MAX_STD_RATIO, MIN_VIEWS, PointUncertainty, point_uncertainty
 
 __all__ = ["factorize"]
 
 
+@single_threaded_blas  # the points' covariances too: small products and 3 × 3 eigen-decompositions
 def factorize(
     positions: np.ndarray,
     *,
@@ -21,6 +25,7 @@ def factorize(
     rng: np.random.Generator | int | None = 0,
     min_views: int = MIN_VIEWS,
     max_std_ratio: float = MAX_STD_RATIO,
+    progress: Callable[[int, int], object] | None = None,
 ) -> Reconstruction:
     """Recover 3D shape and affine camera motion from point tracks (Tomasi–Kanade), each point with its covariance.
 
@@ -38,6 +43,9 @@ def factorize(
     min_views, max_std_ratio : a reconstructed point is ``ok`` when seen in at least
         ``min_views`` frames and its largest 1σ axis is at most ``max_std_ratio`` times the
         shape's radius, ``unreliable`` otherwise (docs/factorization.md).
+    progress : callable, optional — called after each iteration of the weighted fit (missing
+        data or weights) with (iterations done, ``max_iterations``), e.g. to drive a progress
+        bar; it usually stops well before ``max_iterations``. Default: silent.
 
     Returns
     -------
@@ -77,7 +85,8 @@ def factorize(
     >>> bool(np.allclose(rec.project(), tracks))
     True
     """
-    factors = factor_affine(positions, weights=weights, max_iterations=max_iterations, tol=tol, rng=rng)
+    factors = factor_affine(positions, weights=weights, max_iterations=max_iterations, tol=tol, rng=rng,
+                            progress=progress)
     uncertainty = point_uncertainty(factors, positions, weights=weights, min_views=min_views,
                                     max_std_ratio=max_std_ratio)
     return affine_reconstruction(factors, uncertainty, positions, weighted=weights is not None)
@@ -109,8 +118,9 @@ def affine_reconstruction(factors: AffineFactors, uncertainty: PointUncertainty,
         views=uncertainty.views,
         point_reprojection_rms=uncertainty.reprojection_rms,
         covariance_gauge=AFFINE_GAUGE,
+        # the residual lengths are measured when first read (large complete input: only then)
         observations=Observations.from_dense(np.asarray(positions), used=factors.observed,
-                                             residuals=factors.residuals),
+                                             residuals=partial(getattr, factors, "residuals")),
         noise=NoiseEstimate(std=uncertainty.noise_std, estimated=True, degrees_of_freedom=uncertainty.dof,
                             unit="unit weight" if weighted else "px"),
         reprojection_rms=factors.residual_rms,

@@ -244,8 +244,7 @@ def _complete_unweighted(reconstruction: AffineFactors, min_views: int, max_std_
     """
     motion = np.asarray(reconstruction.motion)
     frames, n_points = reconstruction.observed.shape
-    residuals = reconstruction.residuals
-    squared_per_point = np.einsum("fp,fp->p", residuals, residuals, dtype=np.float64)
+    squared_per_point = reconstruction.point_residual_sums
     views = np.full(n_points, frames, dtype=np.int64)
     reprojection_rms = np.sqrt(squared_per_point / frames)
     dof = 2 * frames * n_points - (3 * n_points + 8 * frames - _GAUGE_PARAMETERS)
