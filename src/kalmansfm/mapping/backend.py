@@ -1,0 +1,73 @@
+"""The one place that reads the back end's record: what guided matching needs from a reconstruction.
+
+Everything else in :mod:`kalmansfm.mapping` works on :class:`CameraSolution`; when the back end's
+record changes (``PerspectiveReconstruction`` → one ``Reconstruction`` for every method), only
+:func:`read_solution` changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..structure.perspective import FrameStatus, PerspectiveReconstruction
+
+__all__ = ["CameraSolution", "read_solution"]
+
+
+@dataclass(frozen=True)
+class CameraSolution:
+    """Cameras and points of a reconstruction, as the front end uses them (x_cam = R X + t).
+
+    Attributes
+    ----------
+    registered : (F,) bool.
+    rotations, translations : (F, 3, 3), (F, 3) — NaN where not registered.
+    camera_covariances : (F, 6, 6) — of (δω, δC); NaN where not registered.
+    points : (P, 3) — NaN where not reconstructed.
+    point_covariances : (P, 3, 3) — NaN where not reconstructed.
+    inliers : (F, P) bool — the observations the reconstruction kept.
+    pixel_std : σ of the image noise (pixels).
+    frame_status : (F,) int8 — the back end's frame status (registered, not_connected, pose_failed).
+    """
+
+    registered: np.ndarray
+    rotations: np.ndarray
+    translations: np.ndarray
+    camera_covariances: np.ndarray
+    points: np.ndarray
+    point_covariances: np.ndarray
+    inliers: np.ndarray
+    pixel_std: float
+    frame_status: np.ndarray
+
+    @property
+    def reconstructed(self) -> np.ndarray:
+        """(P,) bool — tracks with a 3-D point."""
+        return np.isfinite(self.points).all(axis=1)
+
+    @property
+    def centres(self) -> np.ndarray:
+        """(F, 3) camera centres -Rᵀ t."""
+        return -np.einsum("fji,fj->fi", self.rotations, self.translations)
+
+    @property
+    def not_connected(self) -> np.ndarray:
+        """(F,) bool — the back end found too few shared tracks to try a pose."""
+        return self.frame_status == FrameStatus.NOT_CONNECTED
+
+
+def read_solution(reconstruction: PerspectiveReconstruction) -> CameraSolution:
+    """The front end's view of a back-end reconstruction (the only coupling to its record)."""
+    return CameraSolution(
+        registered=reconstruction.registered.copy(),
+        rotations=reconstruction.rotations,
+        translations=reconstruction.translations,
+        camera_covariances=reconstruction.camera_covariances,
+        points=np.where(reconstruction.reconstructed[:, None], reconstruction.points, np.nan),
+        point_covariances=reconstruction.point_covariances,
+        inliers=reconstruction.inliers,
+        pixel_std=float(reconstruction.pixel_std),
+        frame_status=reconstruction.frame_status,
+    )
