@@ -4,7 +4,8 @@ The public API is what ``__all__`` lists; everything else is internal.
 Data flows one way: frames → :func:`track` → :func:`factorize` → report
 (:func:`run_demo` does all of it); :func:`fuse` fuses each tracked point over views of
 known cameras (:class:`CameraSet`) into a 3D point with a covariance; :func:`fuse_recursive`
-and :func:`estimate_landmarks` fuse 3D structure under known motion.
+and :func:`estimate_landmarks` fuse 3D structure under known motion; :func:`reconstruct_images`
+turns calibrated images (any order) into cameras and points.
 The layers and what each may import: docs/architecture.md.
 
 Importing the package is light: the names of ``__all__`` other than the error classes are
@@ -24,16 +25,19 @@ __all__ = [
     "CameraSet",
     "DemoRun",
     "FuseRun",
+    "FeatureSettings",
     "FusedStructure",
     "FusionSettings",
     "FilterRun",
     "FusionResult",
+    "ImageReconstruction",
     "InvalidInputError",
     "KalmanFilter",
     "KalmanSfmError",
     "KalmanSfmWarning",
     "LandmarkEstimates",
     "LinearGaussianModel",
+    "MappingSettings",
     "NotEnoughDataError",
     "PerspectiveReconstruction",
     "PerspectiveSettings",
@@ -46,6 +50,7 @@ __all__ = [
     "TrackerSettings",
     "Tracks",
     "TriangulationResult",
+    "ViewStatus",
     "__version__",
     "align_similarity",
     "constant_velocity_2d",
@@ -54,6 +59,7 @@ __all__ = [
     "fuse",
     "fuse_closed_form",
     "fuse_recursive",
+    "reconstruct_images",
     "reconstruct_perspective",
     "run_demo",
     "run_fuse",

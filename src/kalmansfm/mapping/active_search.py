@@ -19,11 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..features import FeatureTracks, ImageFeatures, MatchGraph, add_observations, match_descriptors, merge_tracks
+from ..structure import CameraSet, fuse
+from ..structure.perspective import PerspectiveSettings
 from .backend import CameraSolution
 from .guided import Prediction, guided_search, pose_from_correspondences, predict_points
 from .settings import MappingSettings
 
-__all__ = ["GuidedMatchingSummary", "active_search"]
+__all__ = ["GuidedMatchingSummary", "active_search", "drop_inconsistent"]
 
 # An unregistered view is matched against this many of its most similar registered views to predict its pose.
 _POSE_NEIGHBOURS = 3
@@ -38,11 +40,14 @@ class GuidedMatchingSummary:
     added_observations : features that joined a track inside its gate.
     merged_tracks : tracks absorbed into another (found to be the same point).
     predicted_views : views the first reconstruction had not registered that got a pose by PnP and were searched.
+    dropped_observations : observations of the tracks kept for the final reconstruction that the first
+        reconstruction's cameras reject (:func:`drop_inconsistent`).
     """
 
     added_observations: int = 0
     merged_tracks: int = 0
     predicted_views: tuple[int, ...] = ()
+    dropped_observations: int = 0
 
 
 def _unrelated_distance(features: Sequence[ImageFeatures], quantile: float, seed: int, samples: int = 4096) -> float:
@@ -238,3 +243,26 @@ def active_search(features: Sequence[ImageFeatures], tracks: FeatureTracks, solu
                            _affinity(graph))
     search.run()
     return search.apply()
+
+
+def drop_inconsistent(tracks: FeatureTracks, solution: CameraSolution, intrinsics: np.ndarray,
+                      settings: PerspectiveSettings) -> tuple[FeatureTracks, int]:
+    """The tracks without the observations that the registered cameras call outliers; and how many went.
+
+    Each track is triangulated with the cameras of its registered views (the fusion engine's per-point
+    maximum likelihood with leave-one-out outlier rounds, the test and threshold of the back end), and
+    the observations it rejects are removed.  Observations in views without a camera are kept.
+    """
+    frames = np.flatnonzero(solution.registered)
+    if len(frames) < 2 or tracks.feature_index.shape[1] == 0:
+        return tracks, 0
+    cameras = CameraSet.from_pose(intrinsics[frames], solution.rotations[frames], solution.translations[frames])
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # points at a camera's plane
+        fused = fuse(tracks.observations[frames], cameras, method="batch",
+                     pixel_std=settings.outlier_threshold_px / np.sqrt(settings.chi2_bound),
+                     outlier_probability=settings.outlier_probability)
+    drop = np.zeros(tracks.feature_index.shape, bool)
+    drop[frames] = fused.rejected & tracks.seen[frames]
+    observations = np.where(drop[..., None], np.nan, tracks.observations)
+    feature_index = np.where(drop, -1, tracks.feature_index)
+    return FeatureTracks(observations, feature_index, tracks.split_components), int(drop.sum())

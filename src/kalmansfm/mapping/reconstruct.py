@@ -42,7 +42,7 @@ from ..features import (
 from ..structure.perspective import FrameStatus, PerspectiveReconstruction, reconstruct_perspective
 from ..structure.perspective.settings import validate_tracks_and_intrinsics
 from ..tracking.grey import colour_to_grey
-from .active_search import GuidedMatchingSummary, active_search
+from .active_search import GuidedMatchingSummary, active_search, drop_inconsistent
 from .backend import read_solution
 from .settings import MappingSettings, ViewStatus
 
@@ -267,6 +267,11 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
                         inliers=np.zeros(tracks.feature_index.shape, bool))
         tracks, summary = active_search(features, tracks, every, K, image_size, graph, settings)
         lap("guided_matching")
+        selected = tracks.subset(_longest_tracks(tracks, settings.final_tracks_per_view))
+        selected, dropped = drop_inconsistent(selected, every, K, rs)
+        summary = replace(summary, dropped_observations=dropped)
+        tracks = selected
+        lap("track_check")
     final_tracks = tracks.subset(_longest_tracks(tracks, settings.final_tracks_per_view))
     rec = reconstruct_perspective(final_tracks.observations, K, settings=rs)
     lap("final_reconstruction")
