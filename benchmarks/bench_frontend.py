@@ -159,9 +159,9 @@ def run_pycolmap(data: Dataset) -> dict:
                 rotations[k] = pose.rotation.matrix()
                 centres[k] = -rotations[k].T @ pose.translation
         out = camera_scores(data, registered, rotations, centres)
-        out.update(time=elapsed, timings={"extract_features": extracted - start, "match_exhaustive": matched - extracted,
-                                          "incremental_mapping": elapsed - (matched - start)},
-                   models=len(models))
+        stages = {"extract_features": extracted - start, "match_exhaustive": matched - extracted,
+                  "incremental_mapping": elapsed - (matched - start)}
+        out.update(time=elapsed, timings=stages, models=len(models))
         return out
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -199,12 +199,13 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for name, count, ours, colmap, load_average in rows:
         ratio = f"{ours['time'] / colmap['time']:.2f}" if colmap else ""
-        print(f"| {name} ({count}) | ours | {ours['registered']}/{count} | {ours['centres']:.3f} | {ours['rotation']:.3f} | "
-              f"{100 * ours['share_all']:.1f} % of {ours['observations']} / {100 * ours['share_inliers']:.1f} % of "
-              f"{ours['inliers']} | {ours['time']:.1f} | {ratio} | {load_average:.1f} |")
+        share = (f"{100 * ours['share_all']:.1f} % of {ours['observations']} / {100 * ours['share_inliers']:.1f} % of "
+                 f"{ours['inliers']}")
+        print(f"| {name} ({count}) | ours | {ours['registered']}/{count} | {ours['centres']:.3f} | "
+              f"{ours['rotation']:.3f} | {share} | {ours['time']:.1f} | {ratio} | {load_average:.1f} |")
         if colmap:
-            print(f"| | pycolmap | {colmap['registered']}/{count} | {colmap['centres']:.3f} | {colmap['rotation']:.3f} | "
-                  f"| {colmap['time']:.1f} | | |")
+            print(f"| | pycolmap | {colmap['registered']}/{count} | {colmap['centres']:.3f} | "
+                  f"{colmap['rotation']:.3f} | | {colmap['time']:.1f} | | |")
 
 
 if __name__ == "__main__":

@@ -13,8 +13,11 @@
    another track whose observations agree with the point, the two tracks merge.  A view that the first
    reconstruction could not register gets a pose from PnP on its 2-D–3-D matches (its features against
    those of the most similar registered views) and is searched the same way (:mod:`.active_search`).
-4. **Final reconstruction** of each view's longest tracks after guided matching
-   (``final_tracks_per_view``): the back end re-triangulates, rejects outliers and bundle-adjusts.
+4. **Track check**: each view's longest tracks after guided matching (``final_tracks_per_view``) are
+   triangulated with the first reconstruction's cameras (the fusion engine, the back end's outlier test)
+   and lose the observations that test rejects (:func:`.active_search.drop_inconsistent`).
+5. **Final reconstruction** of those tracks: the back end re-triangulates, rejects outliers and
+   bundle-adjusts.
 
 Views that end without a camera are listed with a status and the reason.
 """
@@ -252,13 +255,18 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
     lap("tracks")
     warnings: list[str] = []
     summary = GuidedMatchingSummary()
+    first = None
     if settings.guided_matching:
-        skeleton = tracks.subset(_longest_tracks(tracks, settings.skeleton_tracks_per_view))
-        first = reconstruct_perspective(skeleton.observations, K, settings=rs)
+        index = _longest_tracks(tracks, settings.skeleton_tracks_per_view)
+        try:
+            first = reconstruct_perspective(tracks.subset(index).observations, K, settings=rs)
+        except NotEnoughDataError as exc:  # the skeleton was too thin: reconstruct the full selection directly
+            warnings.append(f"guided matching skipped: the first reconstruction of each view's "
+                            f"{settings.skeleton_tracks_per_view} longest tracks failed ({exc})")
         lap("first_reconstruction")
+    if first is not None:
         solution = read_solution(first)
         # the skeleton's points, placed among all tracks
-        index = _longest_tracks(tracks, settings.skeleton_tracks_per_view)
         points = np.full((tracks.feature_index.shape[1], 3), np.nan)
         covariances = np.full((len(points), 3, 3), np.nan)
         points[index] = solution.points
@@ -268,9 +276,8 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
         tracks, summary = active_search(features, tracks, every, K, image_size, graph, settings)
         lap("guided_matching")
         selected = tracks.subset(_longest_tracks(tracks, settings.final_tracks_per_view))
-        selected, dropped = drop_inconsistent(selected, every, K, rs)
+        tracks, dropped = drop_inconsistent(selected, every, K, rs)
         summary = replace(summary, dropped_observations=dropped)
-        tracks = selected
         lap("track_check")
     final_tracks = tracks.subset(_longest_tracks(tracks, settings.final_tracks_per_view))
     rec = reconstruct_perspective(final_tracks.observations, K, settings=rs)

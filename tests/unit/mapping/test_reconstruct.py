@@ -1,11 +1,22 @@
 """From rendered calibrated images with known cameras to cameras: the ring closes, order does not matter,
 guided matching finds what the cameras predict, views that cannot be registered are listed, bad input is refused."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
-from kalmansfm.mapping import MappingSettings, ViewStatus, guided_search, predict_points, reconstruct_images
+from kalmansfm.features import FeatureTracks
+from kalmansfm.mapping import (
+    MappingSettings,
+    ViewStatus,
+    active_search,
+    guided_search,
+    predict_points,
+    read_solution,
+    reconstruct_images,
+)
 from kalmansfm.scenes.textured import textured_views
 from kalmansfm.structure import CameraSet, align_similarity, fuse, project_points
 
@@ -124,3 +135,32 @@ def test_settings_are_validated():
     with pytest.raises(InvalidInputError, match="batch"):
         from kalmansfm.structure import PerspectiveSettings
         MappingSettings(reconstruction=PerspectiveSettings(method="recursive"))
+
+
+def test_a_view_without_a_camera_is_posed_by_pnp_and_searched(ring):
+    views, result = ring
+    view = 5
+    solution = read_solution(result.reconstruction)
+    # forget view 5: no camera, no observations
+    solution = replace(solution, registered=np.where(np.arange(16) == view, False, solution.registered),
+                       rotations=np.where((np.arange(16) == view)[:, None, None], np.nan, solution.rotations),
+                       translations=np.where((np.arange(16) == view)[:, None], np.nan, solution.translations))
+    tracks = result.tracks
+    truth = tracks.feature_index[view].copy()
+    hidden = FeatureTracks(np.where((np.arange(16) == view)[:, None, None], np.nan, tracks.observations),
+                           np.where((np.arange(16) == view)[:, None], -1, tracks.feature_index))
+    found, summary = active_search(result.features, hidden, solution, np.repeat(views.intrinsics[None], 16, 0),
+                                   result.image_size, result.match_graph, MappingSettings())
+    assert summary.predicted_views == (view,)
+    # tracks may have merged: recognise the original tracks by their observations in the other views
+    owner = {(u, int(tracks.feature_index[u, k])): k for u, k in zip(*np.nonzero(hidden.seen))}
+    right = wrong = 0
+    for k in np.flatnonzero(found.seen[view]):
+        keys = [(u, int(found.feature_index[u, k])) for u in np.flatnonzero(found.seen[:, k]) if u != view]
+        originals = {owner[key] for key in keys if key in owner}  # (observations added by the search are not)
+        if any(truth[o] == found.feature_index[view, k] for o in originals):
+            right += 1
+        elif any(truth[o] >= 0 for o in originals):
+            wrong += 1
+    had = np.sum((truth >= 0) & result.reconstruction.reconstructed)
+    assert right > 0.8 * had and wrong <= 0.02 * right  # most of what the view saw is found again, and right
