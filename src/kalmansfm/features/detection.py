@@ -66,8 +66,8 @@ def _detector(settings: FeatureSettings) -> cv2.Feature2D:
     if settings.detector == "orb":
         return cv2.ORB_create(nfeatures=settings.max_features or 5000)
     if not hasattr(cv2, "AKAZE_create"):  # OpenCV 5 moved AKAZE to the contrib modules
-        raise InvalidInputError(f"detector 'akaze' needs OpenCV's AKAZE, which this OpenCV ({cv2.__version__}) does not "
-                                "have (OpenCV 5: install opencv-contrib-python-headless); use 'sift' or 'orb'")
+        raise InvalidInputError(f"detector 'akaze' needs OpenCV's AKAZE, which this OpenCV ({cv2.__version__}) does "
+                                "not have (OpenCV 5: install opencv-contrib-python-headless); use 'sift' or 'orb'")
     return cv2.AKAZE_create()
 
 

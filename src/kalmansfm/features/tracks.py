@@ -100,7 +100,13 @@ def union_without_conflicts(entry_start: np.ndarray, entry_image: np.ndarray, en
 
 def union_reference(entry_start: np.ndarray, entry_image: np.ndarray, entry_feature: np.ndarray,
                     first: np.ndarray, second: np.ndarray, image_count: int) -> list[set[int]]:
-    """The same constrained union in plain Python with sets (the tests' reference); the sets of elements."""
+    """The same constrained union in plain Python with sets (the tests' reference); the sets of elements.
+
+    Examples
+    --------
+    >>> union_reference(np.array([0, 1, 2, 3]), np.array([0, 1, 0]), np.array([0, 1, 2]), [0, 1], [1, 2], 2)
+    [{0, 1}, {2}]
+    """
     owner = {e: {e} for e in range(len(entry_start) - 1)}
     member_of = list(range(len(entry_start) - 1))
     entries = {e: {(int(entry_image[k]), int(entry_feature[k])) for k in range(entry_start[e], entry_start[e + 1])}

@@ -55,6 +55,8 @@ def _unrelated_distance(features: Sequence[ImageFeatures], quantile: float, seed
     rng = np.random.default_rng(seed)
     sizes = np.array([len(f) for f in features])
     usable = np.flatnonzero(sizes > 0)
+    if len(usable) < 2:
+        return float("inf")
     offset = np.concatenate([[0], np.cumsum(sizes)])
     descriptors = np.concatenate([f.descriptors for f in features])
     first = rng.choice(usable, samples)
@@ -237,6 +239,24 @@ def active_search(features: Sequence[ImageFeatures], tracks: FeatureTracks, solu
     -------
     tracks : FeatureTracks — with the found observations added and the tracks found to be one point merged.
     summary : GuidedMatchingSummary.
+
+    Examples
+    --------
+    Forget view 2's observations, then find them again where its camera says they are.
+
+    >>> from dataclasses import replace
+    >>> from kalmansfm.mapping import reconstruct_images, read_solution
+    >>> from kalmansfm.scenes.textured import textured_views
+    >>> views = textured_views(frames=4, arc_deg=45.0, seed=2)
+    >>> result = reconstruct_images(views.images, views.intrinsics)
+    >>> t = result.tracks
+    >>> hidden = FeatureTracks(t.observations.copy(), t.feature_index.copy())
+    >>> hidden.observations[2], hidden.feature_index[2] = np.nan, -1
+    >>> found, summary = active_search(result.features, hidden, read_solution(result.reconstruction),
+    ...                                np.repeat(views.intrinsics[None], 4, 0), result.image_size,
+    ...                                result.match_graph, result.settings)
+    >>> bool(summary.added_observations > 0.8 * (t.feature_index[2] >= 0).sum())
+    True
     """
     search = _ActiveSearch(features, tracks, solution, intrinsics, image_size, settings,
                            _unrelated_distance(features, settings.unrelated_quantile, settings.features.seed),
@@ -252,6 +272,24 @@ def drop_inconsistent(tracks: FeatureTracks, solution: CameraSolution, intrinsic
     Each track is triangulated with the cameras of its registered views (the fusion engine's per-point
     maximum likelihood with leave-one-out outlier rounds, the test and threshold of the back end), and
     the observations it rejects are removed.  Observations in views without a camera are kept.
+
+    Examples
+    --------
+    A track's observation moved 10 px off is dropped; the others stay.
+
+    >>> from kalmansfm.mapping import reconstruct_images, read_solution
+    >>> from kalmansfm.scenes.textured import textured_views
+    >>> views = textured_views(frames=4, arc_deg=45.0, seed=2)
+    >>> result = reconstruct_images(views.images, views.intrinsics)
+    >>> t = result.tracks
+    >>> moved = t.observations.copy()
+    >>> k = int(np.flatnonzero(t.seen.all(axis=0))[0])       # a track seen in all four views
+    >>> moved[1, k] += 10.0
+    >>> checked, dropped = drop_inconsistent(FeatureTracks(moved, t.feature_index),
+    ...                                      read_solution(result.reconstruction),
+    ...                                      np.repeat(views.intrinsics[None], 4, 0), result.settings.reconstruction)
+    >>> bool(checked.seen[1, k]), int(checked.seen[:, k].sum()), bool(dropped < 0.02 * t.seen.sum())
+    (False, 3, True)
     """
     frames = np.flatnonzero(solution.registered)
     if len(frames) < 2 or tracks.feature_index.shape[1] == 0:

@@ -29,7 +29,9 @@ class CameraSolution:
     point_covariances : (P, 3, 3) — NaN where not reconstructed.
     inliers : (F, P) bool — the observations the reconstruction kept.
     pixel_std : σ of the image noise (pixels).
-    frame_status : (F,) int8 — the back end's frame status (registered, not_connected, pose_failed).
+    pose_failed : (F,) bool — views the back end tried to pose and could not (the others without a camera
+        shared too few points with the reconstruction).
+    warnings : the back end's warnings.
     """
 
     registered: np.ndarray
@@ -40,7 +42,8 @@ class CameraSolution:
     point_covariances: np.ndarray
     inliers: np.ndarray
     pixel_std: float
-    frame_status: np.ndarray
+    pose_failed: np.ndarray
+    warnings: tuple[str, ...] = ()
 
     @property
     def reconstructed(self) -> np.ndarray:
@@ -52,14 +55,19 @@ class CameraSolution:
         """(F, 3) camera centres -Rᵀ t."""
         return -np.einsum("fji,fj->fi", self.rotations, self.translations)
 
-    @property
-    def not_connected(self) -> np.ndarray:
-        """(F,) bool — the back end found too few shared tracks to try a pose."""
-        return self.frame_status == FrameStatus.NOT_CONNECTED
-
 
 def read_solution(reconstruction: PerspectiveReconstruction) -> CameraSolution:
-    """The front end's view of a back-end reconstruction (the only coupling to its record)."""
+    """The front end's view of a back-end reconstruction (the only coupling to its record).
+
+    Examples
+    --------
+    >>> from kalmansfm.scenes.perspective import perspective_scene
+    >>> from kalmansfm.structure.perspective import reconstruct_perspective
+    >>> scene = perspective_scene(frames=5, points=120, pixel_std=0.5, seed=1)
+    >>> solution = read_solution(reconstruct_perspective(scene.observations, scene.intrinsics))
+    >>> bool(solution.registered.all()), solution.points.shape, bool(solution.reconstructed.sum() > 100)
+    (True, (120, 3), True)
+    """
     return CameraSolution(
         registered=reconstruction.registered.copy(),
         rotations=reconstruction.rotations,
@@ -69,5 +77,6 @@ def read_solution(reconstruction: PerspectiveReconstruction) -> CameraSolution:
         point_covariances=reconstruction.point_covariances,
         inliers=reconstruction.inliers,
         pixel_std=float(reconstruction.pixel_std),
-        frame_status=reconstruction.frame_status,
+        pose_failed=reconstruction.frame_status == FrameStatus.POSE_FAILED,
+        warnings=tuple(reconstruction.warnings),
     )

@@ -42,11 +42,11 @@ from ..features import (
     match_images,
     select_pairs,
 )
-from ..structure.perspective import FrameStatus, PerspectiveReconstruction, reconstruct_perspective
+from ..structure.perspective import PerspectiveReconstruction, reconstruct_perspective
 from ..structure.perspective.settings import validate_tracks_and_intrinsics
 from ..tracking.grey import colour_to_grey
 from .active_search import GuidedMatchingSummary, active_search, drop_inconsistent
-from .backend import read_solution
+from .backend import CameraSolution, read_solution
 from .settings import MappingSettings, ViewStatus
 
 __all__ = ["ImageReconstruction", "reconstruct_images"]
@@ -162,15 +162,15 @@ def _no_overlap_message(graph: MatchGraph, count: int, min_inliers: int) -> str:
             "the views do not overlap")
 
 
-def _view_status(features: Sequence[ImageFeatures], graph: MatchGraph, rec: PerspectiveReconstruction,
+def _view_status(features: Sequence[ImageFeatures], graph: MatchGraph, solution: CameraSolution,
                  tracks: FeatureTracks, settings: MappingSettings) -> tuple[np.ndarray, tuple[str, ...]]:
     F = len(features)
     fs, rs = settings.features, settings.reconstruction
     status = np.full(F, ViewStatus.REGISTERED, np.int8)
     reasons = [""] * F
     degree = graph.degree(F)
-    shared = (tracks.seen & rec.reconstructed[None]).sum(axis=1)
-    for v in np.flatnonzero(~rec.registered):
+    shared = (tracks.seen & solution.reconstructed[None]).sum(axis=1)
+    for v in np.flatnonzero(~solution.registered):
         if len(features[v]) < fs.min_inliers:
             status[v] = ViewStatus.NO_FEATURES
             reasons[v] = f"{len(features[v])} features detected, need >= {fs.min_inliers}"
@@ -184,7 +184,7 @@ def _view_status(features: Sequence[ImageFeatures], graph: MatchGraph, rec: Pers
                 other = int(graph.candidates[best][graph.candidates[best] != v][0])
                 reasons[v] = (f"no verified pair; best: image {other}, {int(graph.putative_counts[best])} putative "
                               f"matches, need >= {fs.min_inliers} consistent")
-        elif rec.frame_status[v] == FrameStatus.POSE_FAILED:
+        elif solution.pose_failed[v]:
             status[v] = ViewStatus.POSE_FAILED
             reasons[v] = f"no consistent pose from the {int(shared[v])} reconstructed points it sees"
         else:
@@ -282,10 +282,11 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
     final_tracks = tracks.subset(_longest_tracks(tracks, settings.final_tracks_per_view))
     rec = reconstruct_perspective(final_tracks.observations, K, settings=rs)
     lap("final_reconstruction")
-    status, reasons = _view_status(features, graph, rec, final_tracks, settings)
+    final = read_solution(rec)
+    status, reasons = _view_status(features, graph, final, final_tracks, settings)
     missing = np.flatnonzero(status != ViewStatus.REGISTERED)
     if missing.size:
         warnings.append(f"{missing.size} of {F} views have no camera: " + "; ".join(
             f"view {v} {ViewStatus(int(status[v])).label}" for v in missing))
     return ImageReconstruction(features, graph, final_tracks, rec, status, reasons, summary, image_size, settings,
-                               tuple(warnings) + tuple(rec.warnings), timings)
+                               tuple(warnings) + final.warnings, timings)
