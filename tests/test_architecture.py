@@ -5,8 +5,8 @@ The layers, bottom to top (docs/architecture.md):
 0. ``errors``, ``_version`` (siblings)
 1. ``_validation``, ``_compilation`` (siblings)
 2. ``estimation``
-3. ``tracking``, ``structure`` (siblings: neither imports the other)
-4. ``io``
+3. ``tracking``, ``structure``, ``features`` (siblings: none imports another)
+4. ``io``, ``mapping`` (siblings)
 5. ``scenes``, ``experiments`` (siblings)
 6. ``report``
 7. ``pipeline``
@@ -37,7 +37,9 @@ LAYERS: dict[str, int] = {
     "estimation": 2,
     "tracking": 3,
     "structure": 3,
+    "features": 3,
     "io": 4,
+    "mapping": 4,
     "scenes": 5,
     "experiments": 5,
     "report": 6,

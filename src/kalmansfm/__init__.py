@@ -6,7 +6,8 @@ Data flows one way: frames → :func:`track` → a :class:`Reconstruction` → r
 :class:`Reconstruction`: :func:`factorize` (affine cameras), :func:`fuse` (each tracked point fused
 over views of known cameras, :class:`CameraSet`) and :func:`reconstruct_perspective` (calibrated
 cameras with unknown motion); :func:`fuse_recursive` and :func:`estimate_landmarks` fuse 3D
-structure under known motion.
+structure under known motion; :func:`reconstruct_images` turns calibrated images (any order)
+into cameras and points.
 The layers and what each may import: docs/architecture.md.
 
 Importing the package is light: the names of ``__all__`` other than the error classes are
@@ -30,15 +31,18 @@ __all__ = [
     "FrameStatus",
     "FuseRequest",
     "FuseRun",
+    "FeatureSettings",
     "FusionSettings",
     "FilterRun",
     "FusionResult",
+    "ImageReconstruction",
     "InvalidInputError",
     "KalmanFilter",
     "KalmanSfmError",
     "KalmanSfmWarning",
     "LandmarkEstimates",
     "LinearGaussianModel",
+    "MappingSettings",
     "NoiseEstimate",
     "NotEnoughDataError",
     "Observations",
@@ -54,6 +58,7 @@ __all__ = [
     "TrackerSettings",
     "Tracks",
     "TriangulationResult",
+    "ViewStatus",
     "__version__",
     "align_similarity",
     "constant_velocity_2d",
@@ -62,6 +67,7 @@ __all__ = [
     "fuse",
     "fuse_closed_form",
     "fuse_recursive",
+    "reconstruct_images",
     "reconstruct_perspective",
     "run_demo",
     "run_fuse",

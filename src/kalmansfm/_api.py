@@ -16,6 +16,8 @@ from .estimation import (
     fuse_recursive,
     smooth,
 )
+from .features import FeatureSettings
+from .mapping import ImageReconstruction, MappingSettings, ViewStatus, reconstruct_images
 from .pipeline import (
     Affine,
     DemoRequest,

@@ -1,0 +1,118 @@
+"""Detection, pair selection (retrieval finds the closed loop) and verification on rendered views with truth."""
+
+import cv2
+import numpy as np
+import pytest
+
+from kalmansfm.errors import InvalidInputError, NotEnoughDataError
+from kalmansfm.features import (
+    FeatureSettings,
+    detect_all,
+    detect_features,
+    image_similarity,
+    match_descriptors,
+    match_images,
+    select_pairs,
+    verify_matches,
+)
+from kalmansfm.scenes.textured import textured_views
+
+
+@pytest.fixture(scope="module")
+def ring():
+    """16 views all around the textured object (22.5° apart): view 15 is next to view 0."""
+    views = textured_views(frames=16, arc_deg=360.0, seed=4)
+    return views, detect_all(list(views.images))
+
+
+def test_features_are_strongest_first_and_capped():
+    views = textured_views(frames=2, seed=1)
+    every = detect_features(views.images[0])
+    capped = detect_features(views.images[0], FeatureSettings(max_features=50))
+    assert len(every) > 200 and len(capped) == 50
+    assert np.all(np.diff(every.responses) <= 0)
+    np.testing.assert_allclose(np.linalg.norm(every.descriptors, axis=1), 1.0, atol=1e-5)  # RootSIFT: unit vectors
+
+
+@pytest.mark.parametrize("detector, width", [("orb", 256), ("akaze", 488)])
+def test_binary_detectors_give_bits(detector, width):
+    image = textured_views(frames=2, seed=1).images[0]
+    if detector == "akaze" and not hasattr(cv2, "AKAZE_create"):  # OpenCV 5 without the contrib modules
+        with pytest.raises(InvalidInputError, match="needs OpenCV's AKAZE"):
+            detect_features(image, FeatureSettings(detector=detector))
+        return
+    f = detect_features(image, FeatureSettings(detector=detector))
+    assert f.binary and f.descriptors.shape[1] == width and len(f) > 50
+    assert set(np.unique(f.descriptors).tolist()) <= {0.0, 1.0}
+
+
+def test_detection_refuses_what_is_not_a_grey_byte_image():
+    with pytest.raises(InvalidInputError, match="2-D uint8 grey image"):
+        detect_features(np.zeros((40, 40, 3), np.uint8))
+    with pytest.raises(InvalidInputError, match="image 1 must be a 2-D uint8"):
+        detect_all([np.zeros((40, 40), np.uint8), np.zeros((40, 40), np.float32)])
+
+
+def test_retrieval_closes_the_loop(ring):
+    views, feats = ring
+    settings = FeatureSettings(exhaustive_max_images=4, pair_window=1, retrieval_neighbours=3)
+    selection = select_pairs(feats, settings)
+    pairs = {tuple(p) for p in selection.pairs.tolist()}
+    assert (0, 15) in pairs  # neighbours on the circle, at the two ends of the image order
+    k = selection.pairs.tolist().index([0, 15])
+    assert selection.retrieved[k] and not selection.sequential[k]
+    similarity = image_similarity(feats, settings)
+    np.testing.assert_array_equal(similarity, similarity.T)
+    # each view's most similar view is a neighbour on the circle
+    nearest = np.argmax(similarity, axis=1)
+    steps = np.abs(views.angles_deg[nearest] - views.angles_deg) % 360
+    assert np.all(np.minimum(steps, 360 - steps) < 50)
+    graph = match_images(feats, np.repeat(views.intrinsics[None], 16, 0), settings, selection)
+    assert graph.inlier_counts[k] >= 30
+
+
+def test_verification_keeps_the_epipolar_inliers(ring):
+    views, feats = ring
+    K = views.intrinsics
+    graph = match_images(feats[:3], np.repeat(K[None], 3, 0))
+    # the verified matches agree with the true epipolar geometry of views 0 and 1
+    e = graph.candidates.tolist().index([0, 1])
+    m = graph.matches[e]
+    a, b = feats[0].keypoints[m[:, 0]], feats[1].keypoints[m[:, 1]]
+    R = views.rotations[1] @ views.rotations[0].T
+    t = views.translations[1] - R @ views.translations[0]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    F = np.linalg.inv(K).T @ tx @ R @ np.linalg.inv(K)
+    lines = np.c_[a, np.ones(len(a))] @ F.T
+    distance = np.abs(np.sum(np.c_[b, np.ones(len(b))] * lines, axis=1)) / np.linalg.norm(lines[:, :2], axis=1)
+    assert len(m) > 50 and np.percentile(distance, 95) < 1.5
+    # without intrinsics, the fundamental matrix path keeps (almost) the same matches
+    ok = verify_matches(a, b)
+    assert ok.mean() > 0.9
+    with pytest.raises(InvalidInputError, match="both images or of neither"):
+        verify_matches(a, b, K, None)
+
+
+def test_pairs_need_two_images():
+    with pytest.raises(NotEnoughDataError, match="pairs need >= 2 images"):
+        select_pairs(detect_all([textured_views(frames=2).images[0]]))
+
+
+def test_settings_are_validated():
+    with pytest.raises(InvalidInputError, match="detector must be one of"):
+        FeatureSettings(detector="surf")
+    with pytest.raises(InvalidInputError, match="ratio must be in"):
+        FeatureSettings(ratio=1.2)
+    with pytest.raises(InvalidInputError, match="min_inliers"):
+        FeatureSettings(min_inliers=3)
+
+
+def test_image_similarity_counts_the_matches_of_the_strongest_features(ring):
+    _, feats = ring
+    settings = FeatureSettings(retrieval_features=64)
+    similarity = image_similarity(feats[:6], settings)
+    for i in range(6):
+        for j in range(6):
+            a, b = feats[i].descriptors[:64], feats[j].descriptors[:64]
+            expected = 0 if i == j else len(match_descriptors(a, b, 0.8))
+            assert similarity[i, j] == expected
