@@ -300,7 +300,7 @@ def drop_inconsistent(tracks: FeatureTracks, solution: CameraSolution, intrinsic
                      pixel_std=settings.outlier_threshold_px / np.sqrt(settings.chi2_bound),
                      outlier_probability=settings.outlier_probability)
     drop = np.zeros(tracks.feature_index.shape, bool)
-    drop[frames] = fused.rejected & tracks.seen[frames]
+    drop[frames] = fused.observations.rejected_mask() & tracks.seen[frames]
     observations = np.where(drop[..., None], np.nan, tracks.observations)
     feature_index = np.where(drop, -1, tracks.feature_index)
     return FeatureTracks(observations, feature_index, tracks.split_components), int(drop.sum())
