@@ -61,8 +61,12 @@ def _inv3(A, out):
 
 
 @njit(cache=True)
-def _normal2(Qa, Qv, xa, ya, xv, yv, th, N, g, J):
-    """Normal matrix JᵀJ, gradient Jᵀr and cost |r|² of the two start views at θ."""
+def _normal2(Qa, Qv, xa, ya, xv, yv, ca, cv, th, N, g, J):
+    """Normal matrix JᵀJ, gradient Jᵀr and cost |r|² of the two start views at θ, whitened.
+
+    ca, cv: the two observations' standard deviations relative to σ (1 unweighted): each
+    view's residual and Jacobian are divided by its own.
+    """
     for i in range(3):
         g[i] = 0.0
         for j in range(3):
@@ -72,9 +76,16 @@ def _normal2(Qa, Qv, xa, ya, xv, yv, th, N, g, J):
         if k == 0:
             px, py = _project(Qa, th[0], th[1], th[2], J)
             rx, ry = xa - px, ya - py
+            c = ca
         else:
             px, py = _project(Qv, th[0], th[1], th[2], J)
             rx, ry = xv - px, yv - py
+            c = cv
+        if c != 1.0:
+            rx, ry = rx / c, ry / c
+            for j in range(3):
+                J[0, j] /= c
+                J[1, j] /= c
         cost += rx * rx + ry * ry
         for i in range(3):
             g[i] += J[0, i] * rx + J[1, i] * ry
@@ -115,8 +126,8 @@ def _extreme_eigenvalues(A):
 
 
 @njit(cache=True)
-def _start(Qa, Qv, Kinv, xa, ya, xv, yv, iterations, tolerance, max_condition, th, P, N, g, J, Nt, gt, inv, tmp,
-           trial, step):
+def _start(Qa, Qv, Kinv, xa, ya, xv, yv, ca, cv, iterations, tolerance, max_condition, th, P, N, g, J, Nt, gt, inv,
+           tmp, trial, step):
     """Two-view start: θ and its unit-σ covariance into th, P; returns (usable, cost)."""
     # (α, β, 1) ∝ K_a⁻¹ x̃_a
     m0 = Kinv[0, 0] * xa + Kinv[0, 1] * ya + Kinv[0, 2]
@@ -135,13 +146,13 @@ def _start(Qa, Qv, Kinv, xa, ya, xv, yv, iterations, tolerance, max_condition, t
     denom = A0 * A0 + A1 * A1
     rho = (A0 * r0 + A1 * r1) / denom if denom > 0 else 0.0
     th[0], th[1], th[2] = m0, m1, rho
-    cost = _normal2(Qa, Qv, xa, ya, xv, yv, th, N, g, J)
+    cost = _normal2(Qa, Qv, xa, ya, xv, yv, ca, cv, th, N, g, J)
     for _ in range(iterations):
         _ridged_inverse(N, inv, tmp)
         for i in range(3):
             step[i] = inv[i, 0] * g[0] + inv[i, 1] * g[1] + inv[i, 2] * g[2]
             trial[i] = th[i] + step[i]
-        ct = _normal2(Qa, Qv, xa, ya, xv, yv, trial, Nt, gt, J)
+        ct = _normal2(Qa, Qv, xa, ya, xv, yv, ca, cv, trial, Nt, gt, J)
         better = np.isfinite(ct) and ct <= cost
         if better:
             for i in range(3):
@@ -201,10 +212,23 @@ def _kalman_step(prior, P, H, y, x_out, P_out, PHt, K, A, AP):
 
 
 @njit(cache=True)
-def _update(Q, x, y_obs, sigma, gate, iterations, tolerance, th, P, H, prior, P0, y, xn, Pn, PHt, K, A, AP):
+def _whiten(H, y, c):
+    """Divide the measurement's residual and Jacobian by its standard deviation c (relative to σ)."""
+    if c != 1.0:
+        y[0] /= c
+        y[1] /= c
+        for j in range(3):
+            H[0, j] /= c
+            H[1, j] /= c
+
+
+@njit(cache=True)
+def _update(Q, x, y_obs, c, sigma, gate, iterations, tolerance, th, P, H, prior, P0, y, xn, Pn, PHt, K, A, AP):
     """Gated iterated EKF update of (th, P) in place by the pixel (x, y_obs); returns accepted.
 
-    The arguments after P are work buffers (no allocation per update).
+    c is the observation's standard deviation relative to σ (1 unweighted): the update is
+    made with the whitened residual and Jacobian (measurement noise c² σ²).  The arguments
+    after P are work buffers (no allocation per update).
     """
     for i in range(3):
         prior[i] = th[i]
@@ -212,6 +236,7 @@ def _update(Q, x, y_obs, sigma, gate, iterations, tolerance, th, P, H, prior, P0
             P0[i, j] = P[i, j]
     px, py = _project(Q, prior[0], prior[1], prior[2], H)
     y[0], y[1] = x - px, y_obs - py
+    _whiten(H, y, c)
     nis = _kalman_step(prior, P0, H, y, xn, Pn, PHt, K, A, AP)
     if not nis / sigma**2 <= gate:
         return False
@@ -225,6 +250,7 @@ def _update(Q, x, y_obs, sigma, gate, iterations, tolerance, th, P, H, prior, P0
         d0, d1, d2 = prior[0] - th[0], prior[1] - th[1], prior[2] - th[2]
         y[0] = x - px - (H[0, 0] * d0 + H[0, 1] * d1 + H[0, 2] * d2)
         y[1] = y_obs - py - (H[1, 0] * d0 + H[1, 1] * d1 + H[1, 2] * d2)
+        _whiten(H, y, c)
         _kalman_step(prior, P0, H, y, xn, Pn, PHt, K, A, AP)
         moved = False
         for i in range(3):
@@ -240,14 +266,16 @@ def _update(Q, x, y_obs, sigma, gate, iterations, tolerance, th, P, H, prior, P0
 
 
 @njit(cache=True)
-def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iterations, iekf_iterations, tolerance,
+def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate1, start_iterations, iekf_iterations,
+                   tolerance,
                    max_condition, keep_history, theta, cov, anchor, started, stalled, used, rejected, residuals,
                    in_front, hist_theta, hist_cov, hist_mask):
     """Walk every point of a chunk through its views; all outputs are filled in place.
 
     Arrays are point-major (a point's views are adjacent in memory): Q (V, V, 3, 4) the
     anchor-composed cameras, Kinv (V, 3, 3), front_sign (V,) the sign a point's projective
-    depth w / ρ has in front of view v (orientation × sign λ_v), obs (n, V, 2) NaN where unseen.
+    depth w / ρ has in front of view v (orientation × sign λ_v), obs (n, V, 2) NaN where unseen;
+    with ``weighted``, scale (n, V) each observation's standard deviation relative to σ.
     Outputs: theta (n, 3), cov (n, 3, 3) at unit σ, anchor (n,), started/stalled (n,),
     used/rejected (n, V), residuals (n, V, 2) of every observation at the final state,
     in_front (n,); with keep_history, hist_* (n, V, ...) and hist_mask (n, V).
@@ -273,8 +301,9 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
             if np.isnan(x) or np.isnan(y):
                 continue
             resolve = False
+            c = scale[p, v] if weighted else 1.0
             if is_started:
-                ok = _update(Q[first, v], x, y, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0, y2,
+                ok = _update(Q[first, v], x, y, c, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0, y2,
                              xn, Pn, PHt, K, A, AP)
                 if ok:
                     used[p, v] = True
@@ -288,8 +317,9 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
                 else:
                     resolve = True
             elif first >= 0 and second < 0:
+                ca = scale[p, first] if weighted else 1.0
                 usable, cost = _start(Q[first, first], Q[first, v], Kinv[first], obs[p, first, 0],
-                                      obs[p, first, 1], x, y, start_iterations, tolerance, max_condition, th_h[0],
+                                      obs[p, first, 1], x, y, ca, c, start_iterations, tolerance, max_condition, th_h[0],
                                       P_h[0], N, g, H, Nt, gt, A, AP, xn, step)
                 if not usable:
                     stalled[p] = True  # no parallax with the pending view: wait for another view
@@ -320,8 +350,10 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
             best = -1
             for h in range(3):
                 f, s = pair_f[h], pair_s[h]
+                cf = scale[p, f] if weighted else 1.0
+                cs = scale[p, s] if weighted else 1.0
                 usable, cost = _start(Q[f, f], Q[f, s], Kinv[f], obs[p, f, 0], obs[p, f, 1], obs[p, s, 0],
-                                      obs[p, s, 1], start_iterations, tolerance, max_condition, th_h[h], P_h[h],
+                                      obs[p, s, 1], cf, cs, start_iterations, tolerance, max_condition, th_h[h], P_h[h],
                                       N, g, H, Nt, gt, A, AP, xn, step)
                 cost_h[h] = cost if usable else np.inf
                 if best < 0 or cost_h[h] < cost_h[best]:

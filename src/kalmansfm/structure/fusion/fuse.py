@@ -70,7 +70,8 @@ from typing import Any
 import numpy as np
 
 from ...errors import InvalidInputError, NotEnoughDataError
-from ..geometry.pinhole import CameraSet
+from ...estimation.noise_model import SerialCorrelation
+from ..geometry.pinhole import CameraSet, project_points
 from ..points import PointStatus
 from ..reconstruction import (
     KNOWN_CAMERAS_GAUGE,
@@ -87,6 +88,7 @@ from .inputs import scene_orientation_of, validate_inputs
 from .inverse_depth import ViewGeometry, theta_to_point, view_geometry
 from .pairs import run_pairs
 from .recursive import run_recursive
+from .robust import Reweighting, observation_residuals, reweigh, serial_correlation
 from .settings import FusionSettings
 
 __all__ = ["fuse"]
@@ -96,6 +98,12 @@ _SIGMA_TOLERANCE = 5e-3
 _MAX_SIGMA_PASSES = 8
 # States converted from inverse depth to (X, Y, Z) together (bounds the temporaries).
 _CONVERSION_BLOCK = 16_384
+# Reweighted passes under a fitted noise model (iteratively reweighted least squares after the pilot).
+_REWEIGHTED_PASSES = 2
+# Residual degrees of freedom needed to fit a noise model beyond one Gaussian σ.
+_MIN_MODEL_DOF = 50
+# A lag-one correlation of the errors along the tracks above this (and clearly above 0) is warned about.
+_CORRELATED = 0.3
 
 
 _RUNNERS: dict[str, Callable[[Chunk], ChunkResult]] = {"recursive": run_recursive, "batch": run_batch, "pairs": run_pairs}
@@ -131,6 +139,8 @@ def fuse(
     *,
     chunk_points: int | None = None,
     orientation: int | None = None,
+    noise_model: str | None = None,
+    track_scales: bool | None = None,
     settings: FusionSettings | None = None,
     executor: Any | None = None,
 ) -> Reconstruction:
@@ -207,7 +217,8 @@ def fuse(
     True
     """
     options = {"method": method, "pixel_std": pixel_std, "outlier_probability": outlier_probability,
-               "history": history, "chunk_points": chunk_points, "orientation": orientation}
+               "history": history, "chunk_points": chunk_points, "orientation": orientation,
+               "noise_model": noise_model, "track_scales": track_scales}
     given = {name: value for name, value in options.items() if value is not None}
     if settings is not None:
         if given:
@@ -230,8 +241,11 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
     V, N, _ = obs.shape
     slices = _chunks(N, settings.chunk_points)
 
-    def run(sigma: float, gate2: float, gate1: float, keep_history: bool) -> list[ChunkResult]:
-        jobs = [Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history) for s in slices]
+    def run(sigma: float, gate2: float, gate1: float, keep_history: bool, scales: np.ndarray | None = None
+            ) -> list[ChunkResult]:
+        data = obs if scales is None else np.where(np.isnan(scales)[..., None], np.nan, obs)
+        jobs = [Chunk(settings.method, geometry, data[:, s], sigma, gate2, gate1, keep_history,
+                      None if scales is None else scales[:, s]) for s in slices]
         mapper = map if executor is None else executor.map
         return list(mapper(_run_chunk, jobs))
 
@@ -271,7 +285,40 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
             if abs(sigma_out / sigma - 1.0) < _SIGMA_TOLERANCE:
                 break
             sigma, previous = _next_sigma(sigma, sigma_out, previous), (sigma, sigma_out)
-    return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes)
+    reweighting, correlation = None, None
+    notes: list[str] = []
+    fitted = settings.pixel_std is None and settings.noise_model != "gaussian" and settings.method != "pairs"
+    if fitted and dof < _MIN_MODEL_DOF:
+        notes.append(f"{dof} residual degrees of freedom are too few to fit the {settings.noise_model!r} noise "
+                     f"model (at least {_MIN_MODEL_DOF}): one Gaussian σ and the χ² gate were used")
+        fitted = False
+    if fitted:
+        scales = None
+        for i in range(_REWEIGHTED_PASSES):
+            residuals = observation_residuals(geometry, results, slices, obs, scales)
+            reweighting = reweigh(residuals, (V, N), settings.noise_model, settings.outlier_probability,
+                                  settings.track_scales)
+            scales = reweighting.scales
+            sigma_out = reweighting.fit.sigma
+            last = i == _REWEIGHTED_PASSES - 1
+            results = run(sigma_out, np.inf, np.inf, settings.history and last, scales)
+            passes += 1
+        # a diagnostic: errors correlated along the tracks are not what the covariances assume
+        correlation = serial_correlation(geometry, results, slices, obs, scales, sigma_out)
+        notes.extend(_correlation_warning(correlation))
+    return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes,
+                     reweighting, correlation, tuple(notes))
+
+
+def _correlation_warning(c: SerialCorrelation) -> list[str]:
+    """A warning when the residuals are clearly correlated along the tracks (lag-one ρ > 0.3, 3 standard errors)."""
+    clear = (c.correlation > _CORRELATED) & (c.correlation - 3 * np.nan_to_num(c.correlation_se, nan=np.inf) > 0)
+    if not clear.any():
+        return []
+    values = ", ".join(f"{axis} {r:.2f} ± {se:.2f}" for axis, r, se in zip("xy", c.correlation, c.correlation_se))
+    return [f"the observation errors are correlated along the tracks (lag-one correlation {values}): the "
+            "covariances assume independent errors, and an error that neighbouring views share is not averaged "
+            "out (a point's error can exceed its covariance; docs/fusion.md, split-half test)"]
 
 
 def _next_sigma(sigma: float, estimate: float, previous: tuple[float, float] | None) -> float:
@@ -331,8 +378,11 @@ def _assemble_history(g: ViewGeometry, results: list[ChunkResult], slices: list[
 
 def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: np.ndarray,
               results: list[ChunkResult], slices: list[slice], sigma: float, estimated: bool,
-              passes: int) -> Reconstruction:
-    converted = [_to_points(g, r.anchors, r.points, r.covariances, sigma) for r in results]
+              passes: int, reweighting: Reweighting | None = None,
+              correlation: SerialCorrelation | None = None, warnings: tuple[str, ...] = ()) -> Reconstruction:
+    # the covariances' scale: σ, times √((ν + 4) / (ν + 2)) for a Student-t core (its weights' information)
+    sigma_cov = sigma if reweighting is None else sigma * np.sqrt(reweighting.fit.covariance_factor)
+    converted = [_to_points(g, r.anchors, r.points, r.covariances, sigma_cov) for r in results]
     points = np.concatenate([x for x, _ in converted])
     cov = np.concatenate([c for _, c in converted])
     status = np.concatenate([r.status for r in results])
@@ -340,15 +390,29 @@ def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: n
     rejected = np.concatenate([r.rejected for r in results], axis=1)
     lengths = np.concatenate([r.residuals for r in results], axis=1)
     ok = status == PointStatus.OK
+    if reweighting is not None:
+        # the model's outliers were left out of the last pass: their residuals at the final points
+        rejected = reweighting.rejected & ok[None]
+        pix = project_points(g.P, np.where(ok[:, None], points, 0.0)).pixels
+        lengths = np.where(np.isfinite(obs).all(axis=2) & ok[None], np.linalg.norm(obs - pix, axis=2), np.nan)
     views = used.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(np.where(used, lengths, 0.0) ** 2, axis=0) / views)
     rms = np.where(ok, rms, np.nan)
     dof = int(2 * used[:, ok].sum() - 3 * ok.sum())
+    if reweighting is None:
+        noise = NoiseEstimate(std=float(sigma), estimated=estimated, degrees_of_freedom=dof)
+    else:
+        fit = reweighting.fit
+        parameters = fit.parameters() + (() if correlation is None else correlation.parameters())
+        with np.errstate(divide="ignore"):
+            observation_std = np.where(np.isfinite(obs[..., 0]), fit.sigma * reweighting.scales, np.nan)
+        noise = NoiseEstimate(std=float(sigma), estimated=True, degrees_of_freedom=int(round(fit.degrees_of_freedom)),
+                              model=fit.model, parameters=parameters, observation_std=observation_std)
     # the RMS over every observation of a fused point that was not rejected
     kept = np.isfinite(obs).all(axis=2) & ~rejected & ok[None]
     overall = float(np.sqrt(np.mean(lengths[kept] ** 2))) if kept.any() else float("nan")
-    hist = _assemble_history(g, results, slices, sigma) if settings.history else None
+    hist = _assemble_history(g, results, slices, sigma_cov) if settings.history else None
     pose = cams.decompose()
     return Reconstruction(
         kind="fusion",
@@ -364,11 +428,12 @@ def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: n
         point_reprojection_rms=rms,
         covariance_gauge=KNOWN_CAMERAS_GAUGE,
         observations=Observations.from_dense(obs, used=used, residuals=lengths, rejected=rejected),
-        noise=NoiseEstimate(std=float(sigma), estimated=estimated, degrees_of_freedom=dof),
+        noise=noise,
         reprojection_rms=overall,
         details=FusionDetails(outlier_probability=settings.outlier_probability, orientation=g.orientation,
                               passes=passes, history=hist),
         intrinsics=pose.intrinsics,
         translations=pose.translations,
         frame_ids=cams.frames,
+        warnings=warnings,
     )
