@@ -194,7 +194,8 @@ def fit_noise_model(
     group_names: tuple[str, ...] | None = None,
     outlier_range: float | None = None,
     max_iterations: int = 200,
-    tolerance: float = 1e-6,
+    tolerance: float = 1e-5,
+    fixed: NoiseFit | None = None,
 ) -> NoiseFit:
     """Fit a noise model to squared residual lengths by expectation–maximisation.
 
@@ -215,6 +216,10 @@ def fit_noise_model(
         R, the radius of the outliers' disc (default: the largest residual).
     max_iterations, tolerance : EM stops when no parameter moves by more than ``tolerance``
         relative (at most ``max_iterations`` rounds).
+    fixed : NoiseFit, optional
+        A fit whose σ, ν, ε, R and group spreads α are kept (e.g. fitted on a sample): only
+        the observations' and groups' posterior quantities are computed for these residuals;
+        the standard errors are the fit's.
 
     Returns
     -------
@@ -278,35 +283,43 @@ def fit_noise_model(
     nu = 30.0 if tailed else np.inf
     eps = 0.02 if with_outliers else 0.0
     alphas = [1.0] * len(labels)
+    if fixed is not None:
+        if fixed.model != model or len(fixed.groups) != len(labels):
+            raise InvalidInputError(f"fixed must be a {model!r} fit with {len(labels)} groupings")
+        sigma2, nu, eps, alphas = fixed.sigma**2, fixed.tail, fixed.outlier_share, [g.spread for g in fixed.groups]
+        if with_outliers:
+            s_max = fixed.outlier_range**2
     lam = [np.ones(int(g.max()) + 1 if n else 0) for g in labels]
     log_lam = [np.zeros_like(x) for x in lam]
     converged, it = False, 0
     for it in range(1, max_iterations + 1):
-        Lam = _product(lam, labels, n)
+        Lam = start_lam = _product(lam, labels, n)
         u = Lam * s / sigma2
         gamma = _inlier_responsibility(u, s, k, Lam, sigma2, nu, eps, s_max) if with_outliers else np.ones(n)
         w = (nu + k) / (nu + u) if np.isfinite(nu) else np.ones(n)
         # σ² = Σ γ E[w] Λ s / Σ γ k
-        new_sigma2 = float(np.sum(gamma * w * Lam * s) / np.sum(gamma * k))
+        new_sigma2 = sigma2 if fixed else float(np.sum(gamma * w * Lam * s) / np.sum(gamma * k))
         # group scales, one grouping at a time (the others held)
         new_alphas = []
         for gi, g in enumerate(labels):
             others = Lam / lam[gi][g]
             K = np.bincount(g, gamma * k, minlength=lam[gi].size)
             S = np.bincount(g, gamma * w * others * s, minlength=lam[gi].size) / new_sigma2
-            a = _fit_alpha(K, S)
+            a = alphas[gi] if fixed else _fit_alpha(K, S)
             lam[gi] = (a + K / 2) / (a + S / 2)
             log_lam[gi] = special.digamma(a + K / 2) - np.log(a + S / 2)
             Lam = others * lam[gi][g]
             new_alphas.append(a)
-        new_nu = _fit_nu(s, k, Lam, new_sigma2, gamma) if tailed else np.inf
-        new_eps = float(np.clip(1.0 - gamma.mean(), *_SHARE_BOUNDS)) if with_outliers else 0.0
+        new_nu = _fit_nu(s, k, Lam, new_sigma2, gamma) if tailed and not fixed else nu
+        new_eps = float(np.clip(1.0 - gamma.mean(), *_SHARE_BOUNDS)) if with_outliers and not fixed else eps
         moves = [abs(new_sigma2 / sigma2 - 1)]
         if tailed:
             moves.append(abs(np.log(new_nu / nu)))
         if with_outliers:
             moves.append(abs(new_eps - eps) / max(eps, 1e-3))
         moves += [abs(np.log(a / b)) for a, b in zip(new_alphas, alphas)]
+        if fixed is not None and labels:
+            moves.append(float(np.max(np.abs(np.log(Lam / start_lam)))))
         sigma2, nu, eps, alphas = new_sigma2, new_nu, new_eps, new_alphas
         if max(moves) < tolerance:
             converged = True
@@ -316,7 +329,8 @@ def fit_noise_model(
     u = Lam * s / sigma2
     gamma = _inlier_responsibility(u, s, k, Lam, sigma2, nu, eps, s_max) if with_outliers else np.ones(n)
     w = (nu + k) / (nu + u) if np.isfinite(nu) else np.ones(n)
-    se = _standard_errors(s, k, Lam, sigma2, nu, eps, s_max, tailed, with_outliers)
+    se = (fixed.sigma_se, fixed.tail_se, fixed.outlier_share_se) if fixed is not None else \
+        _standard_errors(s, k, Lam, sigma2, nu, eps, s_max, tailed, with_outliers)
     group_records = []
     group_variance = np.ones(n)
     for gi, g in enumerate(labels):
@@ -329,7 +343,8 @@ def fit_noise_model(
         variance = np.where(shape > 1 + _MIN_SHAPE_EXCESS, (a + S / 2) / np.maximum(shape - 1, _MIN_SHAPE_EXCESS),
                             (a + S / 2) / _MIN_SHAPE_EXCESS)
         group_variance = group_variance * variance[g]
-        group_records.append(GroupScales(names[gi], float(a), _alpha_se(a, K, S), 1.0 / np.sqrt(lam[gi]),
+        spread_se = fixed.groups[gi].spread_se if fixed is not None else _alpha_se(a, K, S)
+        group_records.append(GroupScales(names[gi], float(a), spread_se, 1.0 / np.sqrt(lam[gi]),
                                          np.bincount(g, minlength=lam[gi].size), np.sqrt(variance)))
     loglik = float(np.sum(_log_mixture(s, k, Lam, sigma2, nu, eps, s_max)))
     return NoiseFit(model=model, sigma=float(np.sqrt(sigma2)), sigma_se=se[0], tail=float(nu), tail_se=se[1],
@@ -556,9 +571,9 @@ def _lag_tables(residuals: np.ndarray, design: np.ndarray, lags: np.ndarray, use
     for ct in range(C):
         for cs in range(C):
             Mc = np.ascontiguousarray(M[:, :, ct, :, cs])  # (b, rows i, sources k)
-            flat = Mc.reshape(b * m, m)
-            G0 = flat.T @ flat
-            G1 = flat.T @ np.matmul(S, Mc).reshape(b * m, m)
+            # einsum, not BLAS: these thin products gain nothing from BLAS threads, which stall on a busy machine
+            G0 = np.einsum("bik,bil->kl", Mc, Mc)
+            G1 = np.einsum("bik,bil->kl", Mc, np.matmul(S, Mc))
             T0[ct, cs] = np.bincount(flat_lags, G0.ravel(), minlength=n_lags)
             T1[ct, cs] = np.bincount(flat_lags, 0.5 * (G1 + G1.T).ravel(), minlength=n_lags)
     e0 = np.einsum("bmc,bmc->c", r, r)

@@ -250,6 +250,8 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
         return list(mapper(_run_chunk, jobs))
 
     passes = 1
+    notes: list[str] = []
+    fitted = settings.pixel_std is None and settings.noise_model != "gaussian" and settings.method != "pairs"
     if settings.pixel_std is not None:
         sigma = settings.pixel_std
         results = run(sigma, settings.gate2, settings.gate1, settings.history)
@@ -273,7 +275,9 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
                                      "give pixel_std")
         sigma_out = sigma
         previous: tuple[float, float] | None = None
-        for _ in range(_MAX_SIGMA_PASSES):
+        # a fitted noise model starts from one gated pass at the robust σ (its own outlier decisions follow)
+        gaussian_passes = 1 if fitted and dof >= _MIN_MODEL_DOF else _MAX_SIGMA_PASSES
+        for _ in range(gaussian_passes):
             results = run(sigma, settings.gate2, settings.gate1, settings.history)
             passes += 1
             total, n_obs, n_pts = _sum_squares(results)
@@ -286,21 +290,20 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
                 break
             sigma, previous = _next_sigma(sigma, sigma_out, previous), (sigma, sigma_out)
     reweighting, correlation = None, None
-    notes: list[str] = []
-    fitted = settings.pixel_std is None and settings.noise_model != "gaussian" and settings.method != "pairs"
     if fitted and dof < _MIN_MODEL_DOF:
         notes.append(f"{dof} residual degrees of freedom are too few to fit the {settings.noise_model!r} noise "
                      f"model (at least {_MIN_MODEL_DOF}): one Gaussian σ and the χ² gate were used")
         fitted = False
     if fitted:
         scales = None
-        for i in range(_REWEIGHTED_PASSES):
+        reweighted_passes = _REWEIGHTED_PASSES
+        for i in range(reweighted_passes):
             residuals = observation_residuals(geometry, results, slices, obs, scales)
             reweighting = reweigh(residuals, (V, N), settings.noise_model, settings.outlier_probability,
                                   settings.track_scales)
             scales = reweighting.scales
             sigma_out = reweighting.fit.sigma
-            last = i == _REWEIGHTED_PASSES - 1
+            last = i == reweighted_passes - 1
             results = run(sigma_out, np.inf, np.inf, settings.history and last, scales)
             passes += 1
         # a diagnostic: errors correlated along the tracks are not what the covariances assume

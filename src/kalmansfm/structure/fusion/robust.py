@@ -42,7 +42,11 @@ __all__ = ["ObservationResiduals", "Reweighting", "observation_residuals", "rewe
 # Observations whose leverage is computed together (bounds the temporaries).
 _BLOCK = 131_072
 # Points whose residuals the serial correlation is fitted to (a sample of the fused ones).
-_CORRELATION_SAMPLE = 20_000
+_CORRELATION_SAMPLE = 2_000
+# Observations the noise model's parameters are fitted to (a sample of whole tracks beyond this), and the
+# multiplier that spreads the sampled tracks over the index range.
+_FIT_SAMPLE = 200_000
+_SAMPLE_HASH = 2_654_435_761
 # A residual keeps at least this many degrees of freedom (a two-view point leaves 1 for 4 coordinates).
 _MIN_DOF = 0.05
 
@@ -120,8 +124,17 @@ def reweigh(residuals: ObservationResiduals, shape: tuple[int, int], model: str,
     """Fit ``model`` to the residuals (tracks as groups with ``track_scales``) and turn it into weights and rejections."""
     _, track = np.unique(residuals.point, return_inverse=True)
     groups, names = ((track,), ("track",)) if track_scales else ((), ())
-    fit = fit_noise_model(residuals.squared, model=model, degrees_of_freedom=residuals.dof, groups=groups,
-                          group_names=names)
+    fit_on = np.arange(track.size)
+    if track.size > _FIT_SAMPLE:
+        # the model's few parameters from a sample of whole tracks; then every observation under them
+        keep = (track * _SAMPLE_HASH) % (track.size // _FIT_SAMPLE + 1) == 0
+        fit_on = np.flatnonzero(keep)
+    _, sample_track = np.unique(track[fit_on], return_inverse=True)
+    fit = fit_noise_model(residuals.squared[fit_on], model=model, degrees_of_freedom=residuals.dof[fit_on],
+                          groups=(sample_track,) if track_scales else (), group_names=names)
+    if fit_on.size < track.size:
+        fit = fit_noise_model(residuals.squared, model=model, degrees_of_freedom=residuals.dof, groups=groups,
+                              group_names=names, fixed=fit)
     if fit.outlier_share > 0:
         out = fit.outliers
     else:
