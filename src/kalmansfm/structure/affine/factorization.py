@@ -92,6 +92,9 @@ class AffineFactors:
     iterations : ALS iterations run (0 for ``"svd"``).
     metric_matrix : (3, 3) — A = Q Qᵀ actually used (after any positive-definite repair),
         in the affine gauge of R*.
+    depth_determined : False when the factorization warned that depth is not determined
+        (W not clearly rank 3, an ill-conditioned or repaired metric upgrade, a (nearly)
+        coplanar or collinear shape): no point's depth is then to be trusted.
     """
 
     points: np.ndarray
@@ -105,6 +108,7 @@ class AffineFactors:
     method: str
     iterations: int
     metric_matrix: np.ndarray
+    depth_determined: bool = True
 
     def reprojected(self) -> np.ndarray:
         """(F, P, 2) image positions predicted by the model, M_f S_p + t_f."""
@@ -196,6 +200,7 @@ def factor_affine(
         raise NotEnoughDataError(
             "factorize needs points that spread out; in every frame all observed points are at one place"
         )
+    before = len(notes)
     _check_rank(fit.singular_values, motion_aff[f_ok], shape_aff[p_ok], notes)
 
     rows = motion_aff[f_ok].reshape(-1, 3)
@@ -215,6 +220,8 @@ def factor_affine(
     shape = shape - centroid
     translation = fit.translation + motion @ centroid
     _check_shape(shape[p_ok], notes)
+    # the rank, metric and shape checks each add a note when the depth is not determined
+    depth_determined = len(notes) == before
 
     frames, points = fit.positions.shape[:2]
     full_motion = np.full((frames, 2, 3), np.nan)
@@ -250,6 +257,7 @@ def factor_affine(
         method=method,
         iterations=iterations,
         metric_matrix=a_matrix,
+        depth_determined=depth_determined,
     )
 
 

@@ -84,7 +84,7 @@ from ..reconstruction import (
 from .batch import run_batch
 from .chunks import Chunk, ChunkResult
 from .history import FusionHistory
-from .inputs import scene_orientation_of, validate_inputs
+from .inputs import are_poses, scene_orientation_of, validate_inputs
 from .inverse_depth import ViewGeometry, theta_to_point, view_geometry
 from .pairs import run_pairs
 from .recursive import run_recursive
@@ -98,6 +98,10 @@ _SIGMA_TOLERANCE = 5e-3
 _MAX_SIGMA_PASSES = 8
 # States converted from inverse depth to (X, Y, Z) together (bounds the temporaries).
 _CONVERSION_BLOCK = 16_384
+# A point whose distance from its first camera has a relative standard deviation above this is unreliable, above
+# _NO_DEPTH (three standard deviations reach infinity) degenerate.
+_UNRELIABLE_DEPTH = 0.1
+_NO_DEPTH = 1.0 / 3.0
 # Reweighted passes under a fitted noise model (iteratively reweighted least squares after the pilot).
 _REWEIGHTED_PASSES = 2
 # Residual degrees of freedom needed to fit a noise model beyond one Gaussian σ.
@@ -265,6 +269,9 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
         sq = sq[np.isfinite(sq)]
         total, n_obs, n_pts = _sum_squares(results)
         dof = 2 * n_obs - 3 * n_pts
+        if n_pts == 0:
+            raise NotEnoughDataError(f"pixel_std='auto' needs fused points to estimate the noise from, and none was "
+                                     f"fused: {_why_nothing_fused(obs, results, cams, orientation)}")
         if dof <= 0 or sq.size == 0:
             raise NotEnoughDataError(
                 f"pixel_std='auto' needs more observations than unknowns (2 per observation - 3 per point > 0); "
@@ -311,6 +318,56 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
         notes.extend(_correlation_warning(correlation))
     return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes,
                      reweighting, correlation, tuple(notes))
+
+
+def _why_nothing_fused(obs: np.ndarray, results: list[ChunkResult], cams: CameraSet, orientation: int) -> str:
+    """Why no point was fused, in plain words, from the statuses of an ungated pass."""
+    tracks = int(np.count_nonzero(np.isfinite(obs[..., 0]).sum(axis=0) >= 2))
+    if tracks == 0:
+        return "no track is seen in two views (every track was seen once), so there is nothing to triangulate"
+    status = np.concatenate([r.status for r in results])
+    behind = int(np.count_nonzero(status == PointStatus.BEHIND_CAMERA))
+    degenerate = int(np.count_nonzero(status == PointStatus.DEGENERATE))
+    if behind >= degenerate and behind:
+        how = ("the cameras are poses K [R | t] with det R = +1, which put the points in front at positive depth"
+               if are_poses(cams) else f"orientation {orientation:+d}")
+        return f"the {behind} points seen in two or more views lie behind the cameras that see them ({how})"
+    return (f"none of the {tracks} tracks seen in two or more views has parallax between its views (the camera "
+            "centres coincide, as in a pure rotation, or the points are too far away for the baseline): their "
+            "depth is not determined")
+
+
+def _judge_depth(g: ViewGeometry, points: np.ndarray, cov: np.ndarray, status: np.ndarray, used: np.ndarray
+                 ) -> tuple[np.ndarray, list[str]]:
+    """Points whose depth the views do not fix are not ``ok``.
+
+    σ_d / d, the standard deviation of a point's distance from the first camera that used it
+    relative to that distance (= σ_ρ / ρ of its inverse depth), says how much the views'
+    parallax fixes it.  Beyond :data:`_UNRELIABLE_DEPTH` the Gaussian covariance no longer
+    describes the (skewed, far-reaching) error and the point is ``unreliable``; beyond
+    :data:`_NO_DEPTH`, where three standard deviations reach infinity, it is ``degenerate``.
+    """
+    ok = np.flatnonzero(status == PointStatus.OK)
+    first = np.argmax(used[:, ok], axis=0)
+    ray = points[ok] - g.C[first]
+    distance = np.linalg.norm(ray, axis=1)
+    u = ray / np.where(distance > 0, distance, 1.0)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        relative = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", u, cov[ok], u))) / distance
+    relative = np.where(np.isfinite(relative), relative, np.inf)
+    status = status.copy()
+    none, weak = ok[relative > _NO_DEPTH], ok[(relative > _UNRELIABLE_DEPTH) & (relative <= _NO_DEPTH)]
+    status[none] = PointStatus.DEGENERATE
+    status[weak] = PointStatus.UNRELIABLE
+    degenerate = int(np.count_nonzero(status == PointStatus.DEGENERATE))
+    notes = []
+    if degenerate:
+        notes.append(f"{degenerate} of {status.size} points are 'degenerate': their views have (almost) no parallax, "
+                     "the depth is not determined (infinity is within three standard deviations)")
+    if weak.size:
+        notes.append(f"{weak.size} of {status.size} points are 'unreliable': their distance is uncertain by more than "
+                     f"{_UNRELIABLE_DEPTH:.0%} (little parallax); their covariance does not describe a skewed error")
+    return status, notes
 
 
 def _correlation_warning(c: SerialCorrelation) -> list[str]:
@@ -392,6 +449,16 @@ def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: n
     used = np.concatenate([r.used for r in results], axis=1)
     rejected = np.concatenate([r.rejected for r in results], axis=1)
     lengths = np.concatenate([r.residuals for r in results], axis=1)
+    status, depth_notes = _judge_depth(g, points, cov, status, used)
+    warnings = (*warnings, *depth_notes)
+    has_point = np.isin(status, (PointStatus.OK, PointStatus.UNRELIABLE))
+    points[~has_point], cov[~has_point] = np.nan, np.nan
+    used &= has_point[None]
+    behind = int(np.count_nonzero(status == PointStatus.BEHIND_CAMERA))
+    if behind and settings.orientation is None and are_poses(cams):
+        warnings = (*warnings, f"{behind} of {status.size} points lie behind the cameras that see them: the cameras "
+                    "are poses K [R | t] with det R = +1, which put the points in front at positive depth (a "
+                    "mirrored world frame needs orientation=-1)")
     ok = status == PointStatus.OK
     if reweighting is not None:
         # the model's outliers were left out of the last pass: their residuals at the final points
