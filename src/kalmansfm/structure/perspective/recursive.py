@@ -357,6 +357,22 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     ok = alive & np.isfinite(X).all(axis=1)
     status = np.full(P, PointStatus.TOO_FEW_VIEWS, dtype=np.int8)
     status[lost] = PointStatus.DEGENERATE
+    # a point that does not fit its own observations with the chained poses (the chain's accumulated error
+    # along a long path) is not trusted
+    frames = np.flatnonzero(frame_status == FrameStatus.REGISTERED)
+    tracks = np.flatnonzero(ok)
+    o = ObservationList.from_dense(obs[np.ix_(frames, tracks)], (used & ok[None])[np.ix_(frames, tracks)])
+    r, _ = reprojection_residuals(R_chain[frames], C_chain[frames], X[tracks], o, K[frames])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        point_rms = np.sqrt(np.bincount(o.points, np.sum(r**2, axis=1), minlength=tracks.size)
+                            / np.bincount(o.points, minlength=tracks.size))
+    misfit = tracks[~(point_rms <= settings.outlier_threshold_px)]
+    status[misfit] = PointStatus.UNRELIABLE
+    ok[misfit] = False
+    if misfit.size:
+        warnings.append(f"{misfit.size} points do not fit their own observations with the chained poses (RMS above "
+                        f"{settings.outlier_threshold_px:g} px): marked 'unreliable' — the chain of relative "
+                        "orientations accumulates error along the path; method 'batch' adjusts it as a whole")
     status[ok] = PointStatus.OK
     points = np.where(ok[:, None], X, np.nan)
     point_cov = np.full((P, 3, 3), np.nan)
