@@ -211,7 +211,7 @@ def _kalman_step(prior, P, H, y, x_out, P_out, PHt, K, A, AP):
     return y[0] * (i00 * y[0] + i01 * y[1]) + y[1] * (i01 * y[0] + i11 * y[1])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _whiten(H, y, c):
     """Divide the measurement's residual and Jacobian by its standard deviation c (relative to σ)."""
     if c != 1.0:

@@ -245,11 +245,15 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
     V, N, _ = obs.shape
     slices = _chunks(N, settings.chunk_points)
 
-    def run(sigma: float, gate2: float, gate1: float, keep_history: bool, scales: np.ndarray | None = None
-            ) -> list[ChunkResult]:
+    def run(sigma: float, gate2: float, gate1: float, keep_history: bool, scales: np.ndarray | None = None,
+            points: np.ndarray | None = None) -> list[ChunkResult]:
         data = obs if scales is None else np.where(np.isnan(scales)[..., None], np.nan, obs)
+        parts = slices
+        if points is not None:  # a subset of the points, in chunks of its own
+            data, scales = data[:, points], None if scales is None else scales[:, points]
+            parts = _chunks(points.size, settings.chunk_points)
         jobs = [Chunk(settings.method, geometry, data[:, s], sigma, gate2, gate1, keep_history,
-                      None if scales is None else scales[:, s]) for s in slices]
+                      None if scales is None else scales[:, s]) for s in parts]
         mapper = map if executor is None else executor.map
         return list(mapper(_run_chunk, jobs))
 
@@ -308,16 +312,56 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
             residuals = observation_residuals(geometry, results, slices, obs, scales)
             reweighting = reweigh(residuals, (V, N), settings.noise_model, settings.outlier_probability,
                                   settings.track_scales)
-            scales = reweighting.scales
+            previous_scales, scales = scales, reweighting.scales
             sigma_out = reweighting.fit.sigma
             last = i == reweighted_passes - 1
-            results = run(sigma_out, np.inf, np.inf, settings.history and last, scales)
+            if settings.history:
+                results = run(sigma_out, np.inf, np.inf, last, scales)
+            else:
+                # a point whose observations and weights did not change keeps its estimate: refuse only the others
+                changed = _changed_points(results, obs, scales, previous_scales)
+                results, slices = _merged(results, slices, changed,
+                                          run(sigma_out, np.inf, np.inf, False, scales, changed))
             passes += 1
         # a diagnostic: errors correlated along the tracks are not what the covariances assume
         correlation = serial_correlation(geometry, results, slices, obs, scales, sigma_out)
         notes.extend(_correlation_warning(correlation))
     return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes,
                      reweighting, correlation, tuple(notes))
+
+
+def _changed_points(results: list[ChunkResult], obs: np.ndarray, scales: np.ndarray,
+                    previous: np.ndarray | None) -> np.ndarray:
+    """Points whose kept observations or weights differ from the pass that gave ``results``."""
+    used = np.concatenate([r.used for r in results], axis=1)
+    kept = np.isfinite(obs[..., 0]) & np.isfinite(scales)
+    before = np.ones_like(scales) if previous is None else previous
+    reweighed = kept & ~(scales == before)
+    return np.flatnonzero(np.any(kept != used, axis=0) | np.any(reweighed, axis=0))
+
+
+def _merged(results: list[ChunkResult], slices: list[slice], points: np.ndarray, update: list[ChunkResult]
+            ) -> tuple[list[ChunkResult], list[slice]]:
+    """All points as one chunk: ``results`` with the given points replaced by ``update`` (their own chunks)."""
+    def whole(parts: list[ChunkResult]) -> dict:
+        anchored = parts[0].anchors is not None
+        return {"points": np.concatenate([r.points for r in parts]),
+                "covariances": np.concatenate([r.covariances for r in parts]),
+                "status": np.concatenate([r.status for r in parts]),
+                "used": np.concatenate([r.used for r in parts], axis=1),
+                "rejected": np.concatenate([r.rejected for r in parts], axis=1),
+                "residuals": np.concatenate([r.residuals for r in parts], axis=1),
+                "anchors": np.concatenate([r.anchors for r in parts]) if anchored else None}
+    merged = whole(results)
+    if points.size:
+        new = whole(update)
+        for name in ("points", "covariances", "status", "anchors"):
+            if merged[name] is not None:
+                merged[name][points] = new[name]
+        for name in ("used", "rejected", "residuals"):
+            merged[name][:, points] = new[name]
+    n = merged["status"].size
+    return [ChunkResult(history=None, **merged)], [slice(0, n)]
 
 
 def _why_nothing_fused(obs: np.ndarray, results: list[ChunkResult], cams: CameraSet, orientation: int) -> str:
