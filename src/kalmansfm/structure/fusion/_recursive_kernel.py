@@ -61,12 +61,8 @@ def _inv3(A, out):
 
 
 @njit(cache=True)
-def _normal2(Qa, Qv, xa, ya, xv, yv, ca, cv, th, N, g, J):
-    """Normal matrix JᵀJ, gradient Jᵀr and cost |r|² of the two start views at θ, whitened.
-
-    ca, cv: the two observations' standard deviations relative to σ (1 unweighted): each
-    view's residual and Jacobian are divided by its own.
-    """
+def _normal2(Qa, Qv, xa, ya, xv, yv, th, N, g, J):
+    """Normal matrix JᵀJ, gradient Jᵀr and cost |r|² of the two start views at θ."""
     for i in range(3):
         g[i] = 0.0
         for j in range(3):
@@ -76,16 +72,9 @@ def _normal2(Qa, Qv, xa, ya, xv, yv, ca, cv, th, N, g, J):
         if k == 0:
             px, py = _project(Qa, th[0], th[1], th[2], J)
             rx, ry = xa - px, ya - py
-            c = ca
         else:
             px, py = _project(Qv, th[0], th[1], th[2], J)
             rx, ry = xv - px, yv - py
-            c = cv
-        if c != 1.0:
-            rx, ry = rx / c, ry / c
-            for j in range(3):
-                J[0, j] /= c
-                J[1, j] /= c
         cost += rx * rx + ry * ry
         for i in range(3):
             g[i] += J[0, i] * rx + J[1, i] * ry
@@ -126,8 +115,8 @@ def _extreme_eigenvalues(A):
 
 
 @njit(cache=True)
-def _start(Qa, Qv, Kinv, xa, ya, xv, yv, ca, cv, iterations, tolerance, max_condition, th, P, N, g, J, Nt, gt, inv,
-           tmp, trial, step):
+def _start(Qa, Qv, Kinv, xa, ya, xv, yv, iterations, tolerance, max_condition, th, P, N, g, J, Nt, gt, inv, tmp,
+           trial, step):
     """Two-view start: θ and its unit-σ covariance into th, P; returns (usable, cost)."""
     # (α, β, 1) ∝ K_a⁻¹ x̃_a
     m0 = Kinv[0, 0] * xa + Kinv[0, 1] * ya + Kinv[0, 2]
@@ -146,13 +135,13 @@ def _start(Qa, Qv, Kinv, xa, ya, xv, yv, ca, cv, iterations, tolerance, max_cond
     denom = A0 * A0 + A1 * A1
     rho = (A0 * r0 + A1 * r1) / denom if denom > 0 else 0.0
     th[0], th[1], th[2] = m0, m1, rho
-    cost = _normal2(Qa, Qv, xa, ya, xv, yv, ca, cv, th, N, g, J)
+    cost = _normal2(Qa, Qv, xa, ya, xv, yv, th, N, g, J)
     for _ in range(iterations):
         _ridged_inverse(N, inv, tmp)
         for i in range(3):
             step[i] = inv[i, 0] * g[0] + inv[i, 1] * g[1] + inv[i, 2] * g[2]
             trial[i] = th[i] + step[i]
-        ct = _normal2(Qa, Qv, xa, ya, xv, yv, ca, cv, trial, Nt, gt, J)
+        ct = _normal2(Qa, Qv, xa, ya, xv, yv, trial, Nt, gt, J)
         better = np.isfinite(ct) and ct <= cost
         if better:
             for i in range(3):
@@ -211,24 +200,11 @@ def _kalman_step(prior, P, H, y, x_out, P_out, PHt, K, A, AP):
     return y[0] * (i00 * y[0] + i01 * y[1]) + y[1] * (i01 * y[0] + i11 * y[1])
 
 
-@njit(cache=True, inline="always")
-def _whiten(H, y, c):
-    """Divide the measurement's residual and Jacobian by its standard deviation c (relative to σ)."""
-    if c != 1.0:
-        y[0] /= c
-        y[1] /= c
-        for j in range(3):
-            H[0, j] /= c
-            H[1, j] /= c
-
-
 @njit(cache=True)
-def _update(Q, x, y_obs, c, sigma, gate, iterations, tolerance, th, P, H, prior, P0, y, xn, Pn, PHt, K, A, AP):
+def _update(Q, x, y_obs, sigma, gate, iterations, tolerance, th, P, H, prior, P0, y, xn, Pn, PHt, K, A, AP):
     """Gated iterated EKF update of (th, P) in place by the pixel (x, y_obs); returns accepted.
 
-    c is the observation's standard deviation relative to σ (1 unweighted): the update is
-    made with the whitened residual and Jacobian (measurement noise c² σ²).  The arguments
-    after P are work buffers (no allocation per update).
+    The arguments after P are work buffers (no allocation per update).
     """
     for i in range(3):
         prior[i] = th[i]
@@ -236,7 +212,6 @@ def _update(Q, x, y_obs, c, sigma, gate, iterations, tolerance, th, P, H, prior,
             P0[i, j] = P[i, j]
     px, py = _project(Q, prior[0], prior[1], prior[2], H)
     y[0], y[1] = x - px, y_obs - py
-    _whiten(H, y, c)
     nis = _kalman_step(prior, P0, H, y, xn, Pn, PHt, K, A, AP)
     if not nis / sigma**2 <= gate:
         return False
@@ -250,7 +225,6 @@ def _update(Q, x, y_obs, c, sigma, gate, iterations, tolerance, th, P, H, prior,
         d0, d1, d2 = prior[0] - th[0], prior[1] - th[1], prior[2] - th[2]
         y[0] = x - px - (H[0, 0] * d0 + H[0, 1] * d1 + H[0, 2] * d2)
         y[1] = y_obs - py - (H[1, 0] * d0 + H[1, 1] * d1 + H[1, 2] * d2)
-        _whiten(H, y, c)
         _kalman_step(prior, P0, H, y, xn, Pn, PHt, K, A, AP)
         moved = False
         for i in range(3):
@@ -265,17 +239,33 @@ def _update(Q, x, y_obs, c, sigma, gate, iterations, tolerance, th, P, H, prior,
     return True
 
 
+@njit(cache=True, inline="always")
+def _whitened(Q, Kinv, c, Q_out, Kinv_out):
+    """Q with its first two rows divided by c, K⁻¹ with its first two columns multiplied by c.
+
+    An observation with standard deviation c σ, divided by c, has the noise of the others: the
+    projection through the scaled Q of the scaled pixel, and the anchor ray through the scaled
+    K⁻¹, are those of the whitened measurement (the kernel's update and start are unchanged).
+    """
+    for i in range(3):
+        f = 1.0 / c if i < 2 else 1.0
+        for j in range(4):
+            Q_out[i, j] = Q[i, j] * f
+        for j in range(3):
+            Kinv_out[i, j] = Kinv[i, j] * (c if j < 2 else 1.0)
+
+
 @njit(cache=True)
-def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate1, start_iterations, iekf_iterations,
-                   tolerance,
-                   max_condition, keep_history, theta, cov, anchor, started, stalled, used, rejected, residuals,
-                   in_front, hist_theta, hist_cov, hist_mask):
+def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate1, start_iterations,
+                   iekf_iterations, tolerance, max_condition, keep_history, theta, cov, anchor, started, stalled,
+                   used, rejected, residuals, in_front, hist_theta, hist_cov, hist_mask):
     """Walk every point of a chunk through its views; all outputs are filled in place.
 
     Arrays are point-major (a point's views are adjacent in memory): Q (V, V, 3, 4) the
     anchor-composed cameras, Kinv (V, 3, 3), front_sign (V,) the sign a point's projective
     depth w / ρ has in front of view v (orientation × sign λ_v), obs (n, V, 2) NaN where unseen;
-    with ``weighted``, scale (n, V) each observation's standard deviation relative to σ.
+    with ``weighted``, scale (n, V) each observation's standard deviation relative to σ (the
+    observation is whitened: :func:`_whitened`).
     Outputs: theta (n, 3), cov (n, 3, 3) at unit σ, anchor (n,), started/stalled (n,),
     used/rejected (n, V), residuals (n, V, 2) of every observation at the final state,
     in_front (n,); with keep_history, hist_* (n, V, ...) and hist_mask (n, V).
@@ -291,6 +281,7 @@ def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate
     N, g, Nt, gt, step = np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3)
     th_h, P_h, cost_h = np.empty((3, 3)), np.empty((3, 3, 3)), np.empty(3)
     pair_f, pair_s = np.empty(3, dtype=np.int64), np.empty(3, dtype=np.int64)
+    Qa_w, Qv_w, Kinv_w, Kinv_unused = np.empty((3, 4)), np.empty((3, 4)), np.empty((3, 3)), np.empty((3, 3))
     for p in range(n):
         first = -1
         second = -1
@@ -301,10 +292,15 @@ def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate
             if np.isnan(x) or np.isnan(y):
                 continue
             resolve = False
-            c = scale[p, v] if weighted else 1.0
             if is_started:
-                ok = _update(Q[first, v], x, y, c, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0, y2,
-                             xn, Pn, PHt, K, A, AP)
+                if weighted:
+                    c = scale[p, v]
+                    _whitened(Q[first, v], Kinv[first], c, Qv_w, Kinv_unused)
+                    ok = _update(Qv_w, x / c, y / c, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0,
+                                 y2, xn, Pn, PHt, K, A, AP)
+                else:
+                    ok = _update(Q[first, v], x, y, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0,
+                                 y2, xn, Pn, PHt, K, A, AP)
                 if ok:
                     used[p, v] = True
                     verified = True
@@ -317,10 +313,17 @@ def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate
                 else:
                     resolve = True
             elif first >= 0 and second < 0:
-                ca = scale[p, first] if weighted else 1.0
-                usable, cost = _start(Q[first, first], Q[first, v], Kinv[first], obs[p, first, 0],
-                                      obs[p, first, 1], x, y, ca, c, start_iterations, tolerance, max_condition, th_h[0],
-                                      P_h[0], N, g, H, Nt, gt, A, AP, xn, step)
+                if weighted:
+                    ca, c = scale[p, first], scale[p, v]
+                    _whitened(Q[first, first], Kinv[first], ca, Qa_w, Kinv_w)
+                    _whitened(Q[first, v], Kinv[first], c, Qv_w, Kinv_unused)
+                    usable, cost = _start(Qa_w, Qv_w, Kinv_w, obs[p, first, 0] / ca, obs[p, first, 1] / ca, x / c,
+                                          y / c, start_iterations, tolerance, max_condition, th_h[0], P_h[0], N, g,
+                                          H, Nt, gt, A, AP, xn, step)
+                else:
+                    usable, cost = _start(Q[first, first], Q[first, v], Kinv[first], obs[p, first, 0],
+                                          obs[p, first, 1], x, y, start_iterations, tolerance, max_condition,
+                                          th_h[0], P_h[0], N, g, H, Nt, gt, A, AP, xn, step)
                 if not usable:
                     stalled[p] = True  # no parallax with the pending view: wait for another view
                 elif cost <= gate1_px:
@@ -350,11 +353,17 @@ def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate
             best = -1
             for h in range(3):
                 f, s = pair_f[h], pair_s[h]
-                cf = scale[p, f] if weighted else 1.0
-                cs = scale[p, s] if weighted else 1.0
-                usable, cost = _start(Q[f, f], Q[f, s], Kinv[f], obs[p, f, 0], obs[p, f, 1], obs[p, s, 0],
-                                      obs[p, s, 1], cf, cs, start_iterations, tolerance, max_condition, th_h[h], P_h[h],
-                                      N, g, H, Nt, gt, A, AP, xn, step)
+                if weighted:
+                    cf, cs = scale[p, f], scale[p, s]
+                    _whitened(Q[f, f], Kinv[f], cf, Qa_w, Kinv_w)
+                    _whitened(Q[f, s], Kinv[f], cs, Qv_w, Kinv_unused)
+                    usable, cost = _start(Qa_w, Qv_w, Kinv_w, obs[p, f, 0] / cf, obs[p, f, 1] / cf, obs[p, s, 0] / cs,
+                                          obs[p, s, 1] / cs, start_iterations, tolerance, max_condition, th_h[h],
+                                          P_h[h], N, g, H, Nt, gt, A, AP, xn, step)
+                else:
+                    usable, cost = _start(Q[f, f], Q[f, s], Kinv[f], obs[p, f, 0], obs[p, f, 1], obs[p, s, 0],
+                                          obs[p, s, 1], start_iterations, tolerance, max_condition, th_h[h], P_h[h],
+                                          N, g, H, Nt, gt, A, AP, xn, step)
                 cost_h[h] = cost if usable else np.inf
                 if best < 0 or cost_h[h] < cost_h[best]:
                     best = h
