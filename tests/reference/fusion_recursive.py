@@ -48,7 +48,7 @@ def recursive_states_numpy(job: Chunk) -> RecursiveStates:
         """
         cv = np.full(idx.size, c)
         hyps = [(b, cv), (a, cv), (a, b)]  # drop a, drop b, drop c
-        fits = [pair_starts(g, f, s_, obs, idx) for f, s_ in hyps]
+        fits = [pair_starts(g, f, s_, obs, idx, job.scales) for f, s_ in hyps]
         costs = np.stack([f[2] for f in fits], axis=1)
         k = np.argmin(costs, axis=1)
         ok = costs[np.arange(idx.size), k] <= gate1_px
@@ -89,7 +89,8 @@ def recursive_states_numpy(job: Chunk) -> RecursiveStates:
         # updates: gated iterated EKF, all points at once
         idx = np.flatnonzero(verified_now | provisional_now)
         if idx.size:
-            up = iterated_update(g.Q[first[idx], v], theta[idx], cov[idx], obs[v, idx], job.sigma, job.gate2)
+            up = iterated_update(g.Q[first[idx], v], theta[idx], cov[idx], obs[v, idx], job.sigma, job.gate2,
+                                 None if job.scales is None else job.scales[v, idx])
             th, P, ok = up.states, up.covariances, up.accepted
             acc = idx[ok]
             theta[acc], cov[acc] = th[ok], P[ok]
@@ -104,7 +105,7 @@ def recursive_states_numpy(job: Chunk) -> RecursiveStates:
         # second observation: a provisional start or a conflict
         idx = np.flatnonzero(single_now)
         if idx.size:
-            th, P, cost = pair_starts(g, first[idx], np.full(idx.size, v), obs, idx)
+            th, P, cost = pair_starts(g, first[idx], np.full(idx.size, v), obs, idx, job.scales)
             usable = np.isfinite(cost)
             stalled[idx[~usable]] = True  # no parallax with the pending view: wait for another view
             go_mask = usable & (cost <= gate1_px)

@@ -13,22 +13,38 @@ from .kalman import (
     kalman_update,
 )
 from .models import LinearGaussianModel, constant_velocity_2d, initial_state
+from .noise_model import (
+    NOISE_MODELS,
+    GroupScales,
+    NoiseFit,
+    SerialCorrelation,
+    fit_noise_model,
+    fit_serial_correlation,
+    serial_covariance,
+)
 from .smoothing import FilterRun, SmoothedRun, smooth
 
 __all__ = [
+    "NOISE_MODELS",
     "FilterRun",
     "FusionResult",
+    "GroupScales",
     "InnovationStatistics",
     "KalmanFilter",
     "LinearGaussianModel",
+    "NoiseFit",
+    "SerialCorrelation",
     "SmoothedRun",
     "UpdateResult",
     "constant_velocity_2d",
+    "fit_noise_model",
+    "fit_serial_correlation",
     "fuse_closed_form",
     "fuse_recursive",
     "initial_state",
     "innovation_statistics",
     "kalman_predict",
     "kalman_update",
+    "serial_covariance",
     "smooth",
 ]

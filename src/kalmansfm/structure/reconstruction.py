@@ -283,6 +283,9 @@ class NoiseEstimate:
     model : the noise model (``"gaussian"``).
     unit : ``"px"`` or ``"unit weight"``.
     parameters : other fitted parameters of the model, as (name, value) pairs.
+    observation_std : (F, P) each observation's own standard deviation under the model
+        (pixels; NaN where there is no observation or it was left out), or None when every
+        observation has σ.
 
     Examples
     --------
@@ -296,12 +299,16 @@ class NoiseEstimate:
     model: str = "gaussian"
     unit: str = "px"
     parameters: tuple[tuple[str, float], ...] = ()
+    observation_std: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def describe(self) -> str:
         """One line saying what σ is and where it came from."""
         unit = " px" if self.unit == "px" else f" ({self.unit})"
         how = f"estimated, {self.degrees_of_freedom} degrees of freedom" if self.estimated else "given"
-        return f"σ {self.std:.3g}{unit} ({self.model}, {how})"
+        shown = {"tail_dof": "ν", "outlier_share": "outliers", "track_spread": "track spread α",
+                 "serial_correlation_x": "ρx", "serial_correlation_y": "ρy"}
+        extra = "".join(f", {shown[k]} {v:.3g}" for k, v in self.parameters if k in shown)
+        return f"σ {self.std:.3g}{unit} ({self.model}{extra}, {how})"
 
 
 @dataclass(frozen=True)

@@ -106,6 +106,9 @@ class AffineFactors:
     iterations : ALS iterations run (0 for ``"svd"``).
     metric_matrix : (3, 3) — A = Q Qᵀ actually used (after any positive-definite repair),
         in the affine gauge of R*.
+    depth_determined : False when the factorization warned that depth is not determined
+        (W not clearly rank 3, an ill-conditioned or repaired metric upgrade, a (nearly)
+        coplanar or collinear shape): no point's depth is then to be trusted.
     """
 
     points: np.ndarray
@@ -119,6 +122,7 @@ class AffineFactors:
     method: str
     iterations: int
     metric_matrix: np.ndarray
+    depth_determined: bool = True
     # the (F, P) distances when the fit measured them; else the positions to measure them from
     _residuals: np.ndarray | None = field(default=None, repr=False)
     _positions: np.ndarray | None = field(default=None, repr=False)
@@ -231,6 +235,7 @@ def factor_affine(
         raise NotEnoughDataError(
             "factorize needs points that spread out; in every frame all observed points are at one place"
         )
+    before = len(notes)
     _check_rank(fit.singular_values, motion_aff[f_ok], shape_aff[p_ok], notes)
 
     rows = motion_aff[f_ok].reshape(-1, 3)
@@ -250,6 +255,8 @@ def factor_affine(
     shape = shape - centroid
     translation = fit.translation + motion @ centroid
     _check_shape(shape[p_ok], notes)
+    # the rank, metric and shape checks each add a note when the depth is not determined
+    depth_determined = len(notes) == before
 
     frames, points = fit.positions.shape[:2]
     full_motion = np.full((frames, 2, 3), np.nan)
@@ -290,6 +297,7 @@ def factor_affine(
         _residuals=residuals,
         _positions=positions_kept,
         _residual_dtype=fit.residual_dtype,
+        depth_determined=depth_determined,
     )
 
 

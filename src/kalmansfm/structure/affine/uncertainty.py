@@ -79,6 +79,8 @@ class PointUncertainty:
     dof : int — the degrees of freedom n − k behind σ̂.
     radius_px : float — the shape's radius that the bound is relative to.
     min_views, max_std_ratio : the bound applied.
+    depth_determined : False when the factorization found the depth not determined (see
+        :class:`~.factorization.AffineFactors`): then no point is ``ok``.
     """
 
     covariances: np.ndarray
@@ -90,6 +92,7 @@ class PointUncertainty:
     radius_px: float
     min_views: int = MIN_VIEWS
     max_std_ratio: float = MAX_STD_RATIO
+    depth_determined: bool = True
 
     @property
     def largest_std(self) -> np.ndarray:
@@ -115,6 +118,10 @@ class PointUncertainty:
         """One line on the unreliable points among the reconstructed ones (none when there are none)."""
         reconstructed = self.views >= 2  # a point is reconstructed only from two frames on
         bad = reconstructed & ~self.reliable
+        if not self.depth_determined and reconstructed.any():
+            return (f"depth is not determined (see the factorization's warning): all {int(reconstructed.sum())} "
+                    "reconstructed points are marked 'unreliable' — their covariances take the motion as exact and "
+                    "cannot show it",)
         if not bad.any():
             return ()
         few = int((bad & (self.views < self.min_views)).sum())
@@ -275,11 +282,14 @@ def _judge(reconstruction: AffineFactors, covariances: np.ndarray, views: np.nda
         seen = (reconstruction.observed & frame_ok[:, None]).sum(axis=0)
         status[:] = np.where(point_ok, PointStatus.UNRELIABLE,
                              np.where(seen < 2, PointStatus.TOO_FEW_VIEWS, PointStatus.DEGENERATE))
+    depth_determined = bool(getattr(reconstruction, "depth_determined", True))
     uncertainty = PointUncertainty(covariances, views, status, reprojection_rms, float(np.sqrt(noise_var)), int(dof),
-                                   radius, int(min_views), float(max_std_ratio))
+                                   radius, int(min_views), float(max_std_ratio), depth_determined)
     with np.errstate(invalid="ignore"):
         ok = well_seen & np.isfinite(covariances).all(axis=(1, 2)) & (uncertainty.largest_std <= uncertainty.bound_px)
-    uncertainty.status[ok] = PointStatus.OK
+    if depth_determined:
+        # the covariance takes the motion as exact: it cannot see a depth the factorization did not determine
+        uncertainty.status[ok] = PointStatus.OK
     return uncertainty
 
 

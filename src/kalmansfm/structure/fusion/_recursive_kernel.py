@@ -239,15 +239,33 @@ def _update(Q, x, y_obs, sigma, gate, iterations, tolerance, th, P, H, prior, P0
     return True
 
 
+@njit(cache=True, inline="always")
+def _whitened(Q, Kinv, c, Q_out, Kinv_out):
+    """Q with its first two rows divided by c, K⁻¹ with its first two columns multiplied by c.
+
+    An observation with standard deviation c σ, divided by c, has the noise of the others: the
+    projection through the scaled Q of the scaled pixel, and the anchor ray through the scaled
+    K⁻¹, are those of the whitened measurement (the kernel's update and start are unchanged).
+    """
+    for i in range(3):
+        f = 1.0 / c if i < 2 else 1.0
+        for j in range(4):
+            Q_out[i, j] = Q[i, j] * f
+        for j in range(3):
+            Kinv_out[i, j] = Kinv[i, j] * (c if j < 2 else 1.0)
+
+
 @njit(cache=True)
-def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iterations, iekf_iterations, tolerance,
-                   max_condition, keep_history, theta, cov, anchor, started, stalled, used, rejected, residuals,
-                   in_front, hist_theta, hist_cov, hist_mask):
+def recursive_pass(Q, Kinv, front_sign, obs, scale, weighted, sigma, gate2, gate1, start_iterations,
+                   iekf_iterations, tolerance, max_condition, keep_history, theta, cov, anchor, started, stalled,
+                   used, rejected, residuals, in_front, hist_theta, hist_cov, hist_mask):
     """Walk every point of a chunk through its views; all outputs are filled in place.
 
     Arrays are point-major (a point's views are adjacent in memory): Q (V, V, 3, 4) the
     anchor-composed cameras, Kinv (V, 3, 3), front_sign (V,) the sign a point's projective
-    depth w / ρ has in front of view v (orientation × sign λ_v), obs (n, V, 2) NaN where unseen.
+    depth w / ρ has in front of view v (orientation × sign λ_v), obs (n, V, 2) NaN where unseen;
+    with ``weighted``, scale (n, V) each observation's standard deviation relative to σ (the
+    observation is whitened: :func:`_whitened`).
     Outputs: theta (n, 3), cov (n, 3, 3) at unit σ, anchor (n,), started/stalled (n,),
     used/rejected (n, V), residuals (n, V, 2) of every observation at the final state,
     in_front (n,); with keep_history, hist_* (n, V, ...) and hist_mask (n, V).
@@ -263,6 +281,7 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
     N, g, Nt, gt, step = np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3)
     th_h, P_h, cost_h = np.empty((3, 3)), np.empty((3, 3, 3)), np.empty(3)
     pair_f, pair_s = np.empty(3, dtype=np.int64), np.empty(3, dtype=np.int64)
+    Qa_w, Qv_w, Kinv_w, Kinv_unused = np.empty((3, 4)), np.empty((3, 4)), np.empty((3, 3)), np.empty((3, 3))
     for p in range(n):
         first = -1
         second = -1
@@ -274,8 +293,14 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
                 continue
             resolve = False
             if is_started:
-                ok = _update(Q[first, v], x, y, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0, y2,
-                             xn, Pn, PHt, K, A, AP)
+                if weighted:
+                    c = scale[p, v]
+                    _whitened(Q[first, v], Kinv[first], c, Qv_w, Kinv_unused)
+                    ok = _update(Qv_w, x / c, y / c, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0,
+                                 y2, xn, Pn, PHt, K, A, AP)
+                else:
+                    ok = _update(Q[first, v], x, y, sigma, gate2, iekf_iterations, tolerance, th, P, H, prior, P0,
+                                 y2, xn, Pn, PHt, K, A, AP)
                 if ok:
                     used[p, v] = True
                     verified = True
@@ -288,9 +313,17 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
                 else:
                     resolve = True
             elif first >= 0 and second < 0:
-                usable, cost = _start(Q[first, first], Q[first, v], Kinv[first], obs[p, first, 0],
-                                      obs[p, first, 1], x, y, start_iterations, tolerance, max_condition, th_h[0],
-                                      P_h[0], N, g, H, Nt, gt, A, AP, xn, step)
+                if weighted:
+                    ca, c = scale[p, first], scale[p, v]
+                    _whitened(Q[first, first], Kinv[first], ca, Qa_w, Kinv_w)
+                    _whitened(Q[first, v], Kinv[first], c, Qv_w, Kinv_unused)
+                    usable, cost = _start(Qa_w, Qv_w, Kinv_w, obs[p, first, 0] / ca, obs[p, first, 1] / ca, x / c,
+                                          y / c, start_iterations, tolerance, max_condition, th_h[0], P_h[0], N, g,
+                                          H, Nt, gt, A, AP, xn, step)
+                else:
+                    usable, cost = _start(Q[first, first], Q[first, v], Kinv[first], obs[p, first, 0],
+                                          obs[p, first, 1], x, y, start_iterations, tolerance, max_condition,
+                                          th_h[0], P_h[0], N, g, H, Nt, gt, A, AP, xn, step)
                 if not usable:
                     stalled[p] = True  # no parallax with the pending view: wait for another view
                 elif cost <= gate1_px:
@@ -320,9 +353,17 @@ def recursive_pass(Q, Kinv, front_sign, obs, sigma, gate2, gate1, start_iteratio
             best = -1
             for h in range(3):
                 f, s = pair_f[h], pair_s[h]
-                usable, cost = _start(Q[f, f], Q[f, s], Kinv[f], obs[p, f, 0], obs[p, f, 1], obs[p, s, 0],
-                                      obs[p, s, 1], start_iterations, tolerance, max_condition, th_h[h], P_h[h],
-                                      N, g, H, Nt, gt, A, AP, xn, step)
+                if weighted:
+                    cf, cs = scale[p, f], scale[p, s]
+                    _whitened(Q[f, f], Kinv[f], cf, Qa_w, Kinv_w)
+                    _whitened(Q[f, s], Kinv[f], cs, Qv_w, Kinv_unused)
+                    usable, cost = _start(Qa_w, Qv_w, Kinv_w, obs[p, f, 0] / cf, obs[p, f, 1] / cf, obs[p, s, 0] / cs,
+                                          obs[p, s, 1] / cs, start_iterations, tolerance, max_condition, th_h[h],
+                                          P_h[h], N, g, H, Nt, gt, A, AP, xn, step)
+                else:
+                    usable, cost = _start(Q[f, f], Q[f, s], Kinv[f], obs[p, f, 0], obs[p, f, 1], obs[p, s, 0],
+                                          obs[p, s, 1], start_iterations, tolerance, max_condition, th_h[h], P_h[h],
+                                          N, g, H, Nt, gt, A, AP, xn, step)
                 cost_h[h] = cost if usable else np.inf
                 if best < 0 or cost_h[h] < cost_h[best]:
                     best = h

@@ -7,6 +7,7 @@ import numpy as np
 from ..geometry.pinhole import inverse3, project_points, projection_jacobians, refine_points, triangulate_points
 from ..points import PointStatus
 from .chunks import Chunk, ChunkResult, concat_history, finish
+from .weighted import refine_weighted
 
 __all__ = ["run_batch"]
 
@@ -32,7 +33,45 @@ def _batch_fit(P: np.ndarray, obs: np.ndarray, mask: np.ndarray, start: np.ndarr
     return refine_points(P, obs, start, visible=mask, pixel_std=1.0, orientation=orientation)
 
 
+def _weighted_fit(job: Chunk, precision: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    g, obs = job.geometry, job.observations
+    start = triangulate_points(g.P, obs, visible=precision > 0, orientation=g.orientation).points
+    fit = refine_weighted(g.P, g.depth_sign, obs, start, precision, g.orientation)
+    ok = fit.status == PointStatus.OK
+    C = np.full(fit.normal.shape, np.nan)
+    C[ok] = np.linalg.inv(fit.normal[ok])
+    return fit.points, C, fit.status, fit.residuals
+
+
+def _run_weighted(job: Chunk) -> ChunkResult:
+    """A reweighted pass: the observations' own standard deviations, no outlier test (the caller decided)."""
+    obs = job.observations
+    V = obs.shape[0]
+    seen = np.isfinite(obs).all(axis=2)
+    with np.errstate(divide="ignore"):
+        precision = np.where(seen & np.isfinite(job.scales), 1.0 / job.scales**2, 0.0)
+    X, C, status, residuals = _weighted_fit(job, precision)
+    mask = (precision > 0) & (status == PointStatus.OK)[None]
+    hist = None
+    if job.history:
+        parts = []
+        counts = np.cumsum(mask, axis=0)
+        for v in range(1, V):
+            pts = np.flatnonzero(mask[v] & (counts[v] >= 2))
+            if pts.size == 0:
+                continue
+            prefix = np.where(np.arange(V)[:, None] <= v, precision[:, pts], 0.0)
+            sub = Chunk(job.method, job.geometry, obs[:, pts], job.sigma, job.gate2, job.gate1, False)
+            hx, hc, hs, _ = _weighted_fit(sub, prefix)
+            good = hs == PointStatus.OK
+            parts.append((v, pts[good], hx[good], hc[good]))
+        hist = concat_history(parts)
+    return finish(X, C, status, mask, np.zeros((V, obs.shape[1]), dtype=bool), residuals, hist)
+
+
 def run_batch(job: Chunk) -> ChunkResult:
+    if job.scales is not None:
+        return _run_weighted(job)
     g, obs = job.geometry, job.observations
     V, n, _ = obs.shape
     mask = np.isfinite(obs).all(axis=2)

@@ -23,6 +23,8 @@ class Chunk:
     gate2: float
     gate1: float
     history: bool
+    # (V, n) each observation's standard deviation relative to sigma (weighted passes), or None (all 1)
+    scales: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

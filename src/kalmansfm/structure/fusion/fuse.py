@@ -70,7 +70,8 @@ from typing import Any
 import numpy as np
 
 from ...errors import InvalidInputError, NotEnoughDataError
-from ..geometry.pinhole import CameraSet
+from ...estimation.noise_model import SerialCorrelation
+from ..geometry.pinhole import CameraSet, project_points
 from ..points import PointStatus
 from ..reconstruction import (
     KNOWN_CAMERAS_GAUGE,
@@ -83,10 +84,11 @@ from ..reconstruction import (
 from .batch import run_batch
 from .chunks import Chunk, ChunkResult
 from .history import FusionHistory
-from .inputs import scene_orientation_of, validate_inputs
+from .inputs import are_poses, scene_orientation_of, validate_inputs
 from .inverse_depth import ViewGeometry, theta_to_point, view_geometry
 from .pairs import run_pairs
 from .recursive import run_recursive
+from .robust import Reweighting, observation_residuals, reweigh, serial_correlation
 from .settings import FusionSettings
 
 __all__ = ["fuse"]
@@ -96,6 +98,16 @@ _SIGMA_TOLERANCE = 5e-3
 _MAX_SIGMA_PASSES = 8
 # States converted from inverse depth to (X, Y, Z) together (bounds the temporaries).
 _CONVERSION_BLOCK = 16_384
+# A point whose distance from its first camera has a relative standard deviation above this is unreliable, above
+# _NO_DEPTH (three standard deviations reach infinity) degenerate.
+_UNRELIABLE_DEPTH = 0.1
+_NO_DEPTH = 1.0 / 3.0
+# Reweighted passes under a fitted noise model (iteratively reweighted least squares after the pilot).
+_REWEIGHTED_PASSES = 2
+# Residual degrees of freedom needed to fit a noise model beyond one Gaussian σ.
+_MIN_MODEL_DOF = 50
+# A lag-one correlation of the errors along the tracks above this (and clearly above 0) is warned about.
+_CORRELATED = 0.3
 
 
 _RUNNERS: dict[str, Callable[[Chunk], ChunkResult]] = {"recursive": run_recursive, "batch": run_batch, "pairs": run_pairs}
@@ -131,6 +143,8 @@ def fuse(
     *,
     chunk_points: int | None = None,
     orientation: int | None = None,
+    noise_model: str | None = None,
+    track_scales: bool | None = None,
     settings: FusionSettings | None = None,
     executor: Any | None = None,
 ) -> Reconstruction:
@@ -207,7 +221,8 @@ def fuse(
     True
     """
     options = {"method": method, "pixel_std": pixel_std, "outlier_probability": outlier_probability,
-               "history": history, "chunk_points": chunk_points, "orientation": orientation}
+               "history": history, "chunk_points": chunk_points, "orientation": orientation,
+               "noise_model": noise_model, "track_scales": track_scales}
     given = {name: value for name, value in options.items() if value is not None}
     if settings is not None:
         if given:
@@ -230,12 +245,21 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
     V, N, _ = obs.shape
     slices = _chunks(N, settings.chunk_points)
 
-    def run(sigma: float, gate2: float, gate1: float, keep_history: bool) -> list[ChunkResult]:
-        jobs = [Chunk(settings.method, geometry, obs[:, s], sigma, gate2, gate1, keep_history) for s in slices]
+    def run(sigma: float, gate2: float, gate1: float, keep_history: bool, scales: np.ndarray | None = None,
+            points: np.ndarray | None = None) -> list[ChunkResult]:
+        data = obs if scales is None else np.where(np.isnan(scales)[..., None], np.nan, obs)
+        parts = slices
+        if points is not None:  # a subset of the points, in chunks of its own
+            data, scales = data[:, points], None if scales is None else scales[:, points]
+            parts = _chunks(points.size, settings.chunk_points)
+        jobs = [Chunk(settings.method, geometry, data[:, s], sigma, gate2, gate1, keep_history,
+                      None if scales is None else scales[:, s]) for s in parts]
         mapper = map if executor is None else executor.map
         return list(mapper(_run_chunk, jobs))
 
     passes = 1
+    notes: list[str] = []
+    fitted = settings.pixel_std is None and settings.noise_model != "gaussian" and settings.method != "pairs"
     if settings.pixel_std is not None:
         sigma = settings.pixel_std
         results = run(sigma, settings.gate2, settings.gate1, settings.history)
@@ -249,6 +273,9 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
         sq = sq[np.isfinite(sq)]
         total, n_obs, n_pts = _sum_squares(results)
         dof = 2 * n_obs - 3 * n_pts
+        if n_pts == 0:
+            raise NotEnoughDataError(f"pixel_std='auto' needs fused points to estimate the noise from, and none was "
+                                     f"fused: {_why_nothing_fused(obs, results, cams, orientation)}")
         if dof <= 0 or sq.size == 0:
             raise NotEnoughDataError(
                 f"pixel_std='auto' needs more observations than unknowns (2 per observation - 3 per point > 0); "
@@ -259,7 +286,9 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
                                      "give pixel_std")
         sigma_out = sigma
         previous: tuple[float, float] | None = None
-        for _ in range(_MAX_SIGMA_PASSES):
+        # a fitted noise model starts from one gated pass at the robust σ (its own outlier decisions follow)
+        gaussian_passes = 1 if fitted and dof >= _MIN_MODEL_DOF else _MAX_SIGMA_PASSES
+        for _ in range(gaussian_passes):
             results = run(sigma, settings.gate2, settings.gate1, settings.history)
             passes += 1
             total, n_obs, n_pts = _sum_squares(results)
@@ -271,7 +300,129 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
             if abs(sigma_out / sigma - 1.0) < _SIGMA_TOLERANCE:
                 break
             sigma, previous = _next_sigma(sigma, sigma_out, previous), (sigma, sigma_out)
-    return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes)
+    reweighting, correlation = None, None
+    if fitted and dof < _MIN_MODEL_DOF:
+        notes.append(f"{dof} residual degrees of freedom are too few to fit the {settings.noise_model!r} noise "
+                     f"model (at least {_MIN_MODEL_DOF}): one Gaussian σ and the χ² gate were used")
+        fitted = False
+    if fitted:
+        scales = None
+        reweighted_passes = _REWEIGHTED_PASSES
+        for i in range(reweighted_passes):
+            residuals = observation_residuals(geometry, results, slices, obs, scales)
+            reweighting = reweigh(residuals, (V, N), settings.noise_model, settings.outlier_probability,
+                                  settings.track_scales)
+            previous_scales, scales = scales, reweighting.scales
+            sigma_out = reweighting.fit.sigma
+            last = i == reweighted_passes - 1
+            if settings.history:
+                results = run(sigma_out, np.inf, np.inf, last, scales)
+            else:
+                # a point whose observations and weights did not change keeps its estimate: refuse only the others
+                changed = _changed_points(results, obs, scales, previous_scales)
+                results, slices = _merged(results, slices, changed,
+                                          run(sigma_out, np.inf, np.inf, False, scales, changed))
+            passes += 1
+        # a diagnostic: errors correlated along the tracks are not what the covariances assume
+        correlation = serial_correlation(geometry, results, slices, obs, scales, sigma_out)
+        notes.extend(_correlation_warning(correlation))
+    return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes,
+                     reweighting, correlation, tuple(notes))
+
+
+def _changed_points(results: list[ChunkResult], obs: np.ndarray, scales: np.ndarray,
+                    previous: np.ndarray | None) -> np.ndarray:
+    """Points whose kept observations or weights differ from the pass that gave ``results``."""
+    used = np.concatenate([r.used for r in results], axis=1)
+    kept = np.isfinite(obs[..., 0]) & np.isfinite(scales)
+    before = np.ones_like(scales) if previous is None else previous
+    reweighed = kept & ~(scales == before)
+    return np.flatnonzero(np.any(kept != used, axis=0) | np.any(reweighed, axis=0))
+
+
+def _merged(results: list[ChunkResult], slices: list[slice], points: np.ndarray, update: list[ChunkResult]
+            ) -> tuple[list[ChunkResult], list[slice]]:
+    """All points as one chunk: ``results`` with the given points replaced by ``update`` (their own chunks)."""
+    def whole(parts: list[ChunkResult]) -> dict:
+        anchored = parts[0].anchors is not None
+        return {"points": np.concatenate([r.points for r in parts]),
+                "covariances": np.concatenate([r.covariances for r in parts]),
+                "status": np.concatenate([r.status for r in parts]),
+                "used": np.concatenate([r.used for r in parts], axis=1),
+                "rejected": np.concatenate([r.rejected for r in parts], axis=1),
+                "residuals": np.concatenate([r.residuals for r in parts], axis=1),
+                "anchors": np.concatenate([r.anchors for r in parts]) if anchored else None}
+    merged = whole(results)
+    if points.size:
+        new = whole(update)
+        for name in ("points", "covariances", "status", "anchors"):
+            if merged[name] is not None:
+                merged[name][points] = new[name]
+        for name in ("used", "rejected", "residuals"):
+            merged[name][:, points] = new[name]
+    n = merged["status"].size
+    return [ChunkResult(history=None, **merged)], [slice(0, n)]
+
+
+def _why_nothing_fused(obs: np.ndarray, results: list[ChunkResult], cams: CameraSet, orientation: int) -> str:
+    """Why no point was fused, in plain words, from the statuses of an ungated pass."""
+    tracks = int(np.count_nonzero(np.isfinite(obs[..., 0]).sum(axis=0) >= 2))
+    if tracks == 0:
+        return "no track is seen in two views (every track was seen once), so there is nothing to triangulate"
+    status = np.concatenate([r.status for r in results])
+    behind = int(np.count_nonzero(status == PointStatus.BEHIND_CAMERA))
+    degenerate = int(np.count_nonzero(status == PointStatus.DEGENERATE))
+    if behind >= degenerate and behind:
+        how = ("the cameras are poses K [R | t] with det R = +1, which put the points in front at positive depth"
+               if are_poses(cams) else f"orientation {orientation:+d}")
+        return f"the {behind} points seen in two or more views lie behind the cameras that see them ({how})"
+    return (f"none of the {tracks} tracks seen in two or more views has parallax between its views (the camera "
+            "centres coincide, as in a pure rotation, or the points are too far away for the baseline): their "
+            "depth is not determined")
+
+
+def _judge_depth(g: ViewGeometry, points: np.ndarray, cov: np.ndarray, status: np.ndarray, used: np.ndarray
+                 ) -> tuple[np.ndarray, list[str]]:
+    """Points whose depth the views do not fix are not ``ok``.
+
+    σ_d / d, the standard deviation of a point's distance from the first camera that used it
+    relative to that distance (= σ_ρ / ρ of its inverse depth), says how much the views'
+    parallax fixes it.  Beyond :data:`_UNRELIABLE_DEPTH` the Gaussian covariance no longer
+    describes the (skewed, far-reaching) error and the point is ``unreliable``; beyond
+    :data:`_NO_DEPTH`, where three standard deviations reach infinity, it is ``degenerate``.
+    """
+    ok = np.flatnonzero(status == PointStatus.OK)
+    first = np.argmax(used[:, ok], axis=0)
+    ray = points[ok] - g.C[first]
+    distance = np.linalg.norm(ray, axis=1)
+    u = ray / np.where(distance > 0, distance, 1.0)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        relative = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", u, cov[ok], u))) / distance
+    relative = np.where(np.isfinite(relative), relative, np.inf)
+    status = status.copy()
+    none, weak = ok[relative > _NO_DEPTH], ok[(relative > _UNRELIABLE_DEPTH) & (relative <= _NO_DEPTH)]
+    status[none] = PointStatus.DEGENERATE
+    status[weak] = PointStatus.UNRELIABLE
+    degenerate = int(np.count_nonzero(status == PointStatus.DEGENERATE))
+    notes = []
+    if degenerate:
+        notes.append(f"{degenerate} of {status.size} points are 'degenerate': their views have (almost) no parallax, "
+                     "the depth is not determined (infinity is within three standard deviations)")
+    if weak.size:
+        notes.append(f"{weak.size} of {status.size} points are 'unreliable': their distance is uncertain by more than "
+                     f"{_UNRELIABLE_DEPTH:.0%} (little parallax); their covariance does not describe a skewed error")
+    return status, notes
+
+
+def _correlation_warning(c: SerialCorrelation) -> list[str]:
+    """A warning when the residuals are clearly correlated along the tracks (lag-one ρ > 0.3, 3 standard errors)."""
+    clear = (c.correlation > _CORRELATED) & (c.correlation - 3 * np.nan_to_num(c.correlation_se, nan=np.inf) > 0)
+    if not clear.any():
+        return []
+    values = ", ".join(f"{axis} {r:.2f} ± {se:.2f}" for axis, r, se in zip("xy", c.correlation, c.correlation_se))
+    return [f"the observation errors are correlated along the tracks (lag-one correlation {values}): the "
+            "covariances assume independent errors, and an error that neighbouring views share is not averaged "
+            "out (a point's error can exceed its covariance; docs/fusion.md, split-half test)"]
 
 
 def _next_sigma(sigma: float, estimate: float, previous: tuple[float, float] | None) -> float:
@@ -331,24 +482,51 @@ def _assemble_history(g: ViewGeometry, results: list[ChunkResult], slices: list[
 
 def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: np.ndarray,
               results: list[ChunkResult], slices: list[slice], sigma: float, estimated: bool,
-              passes: int) -> Reconstruction:
-    converted = [_to_points(g, r.anchors, r.points, r.covariances, sigma) for r in results]
+              passes: int, reweighting: Reweighting | None = None,
+              correlation: SerialCorrelation | None = None, warnings: tuple[str, ...] = ()) -> Reconstruction:
+    # the covariances' scale: σ, times √((ν + 4) / (ν + 2)) for a Student-t core (its weights' information)
+    sigma_cov = sigma if reweighting is None else sigma * np.sqrt(reweighting.fit.covariance_factor)
+    converted = [_to_points(g, r.anchors, r.points, r.covariances, sigma_cov) for r in results]
     points = np.concatenate([x for x, _ in converted])
     cov = np.concatenate([c for _, c in converted])
     status = np.concatenate([r.status for r in results])
     used = np.concatenate([r.used for r in results], axis=1)
     rejected = np.concatenate([r.rejected for r in results], axis=1)
     lengths = np.concatenate([r.residuals for r in results], axis=1)
+    status, depth_notes = _judge_depth(g, points, cov, status, used)
+    warnings = (*warnings, *depth_notes)
+    has_point = np.isin(status, (PointStatus.OK, PointStatus.UNRELIABLE))
+    points[~has_point], cov[~has_point] = np.nan, np.nan
+    used &= has_point[None]
+    behind = int(np.count_nonzero(status == PointStatus.BEHIND_CAMERA))
+    if behind and settings.orientation is None and are_poses(cams):
+        warnings = (*warnings, f"{behind} of {status.size} points lie behind the cameras that see them: the cameras "
+                    "are poses K [R | t] with det R = +1, which put the points in front at positive depth (a "
+                    "mirrored world frame needs orientation=-1)")
     ok = status == PointStatus.OK
+    if reweighting is not None:
+        # the model's outliers were left out of the last pass: their residuals at the final points
+        rejected = reweighting.rejected & ok[None]
+        pix = project_points(g.P, np.where(ok[:, None], points, 0.0)).pixels
+        lengths = np.where(np.isfinite(obs).all(axis=2) & ok[None], np.linalg.norm(obs - pix, axis=2), np.nan)
     views = used.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(np.where(used, lengths, 0.0) ** 2, axis=0) / views)
     rms = np.where(ok, rms, np.nan)
     dof = int(2 * used[:, ok].sum() - 3 * ok.sum())
+    if reweighting is None:
+        noise = NoiseEstimate(std=float(sigma), estimated=estimated, degrees_of_freedom=dof)
+    else:
+        fit = reweighting.fit
+        parameters = fit.parameters() + (() if correlation is None else correlation.parameters())
+        with np.errstate(divide="ignore"):
+            observation_std = np.where(np.isfinite(obs[..., 0]), fit.sigma * reweighting.scales, np.nan)
+        noise = NoiseEstimate(std=float(sigma), estimated=True, degrees_of_freedom=int(round(fit.degrees_of_freedom)),
+                              model=fit.model, parameters=parameters, observation_std=observation_std)
     # the RMS over every observation of a fused point that was not rejected
     kept = np.isfinite(obs).all(axis=2) & ~rejected & ok[None]
     overall = float(np.sqrt(np.mean(lengths[kept] ** 2))) if kept.any() else float("nan")
-    hist = _assemble_history(g, results, slices, sigma) if settings.history else None
+    hist = _assemble_history(g, results, slices, sigma_cov) if settings.history else None
     pose = cams.decompose()
     return Reconstruction(
         kind="fusion",
@@ -364,11 +542,12 @@ def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: n
         point_reprojection_rms=rms,
         covariance_gauge=KNOWN_CAMERAS_GAUGE,
         observations=Observations.from_dense(obs, used=used, residuals=lengths, rejected=rejected),
-        noise=NoiseEstimate(std=float(sigma), estimated=estimated, degrees_of_freedom=dof),
+        noise=noise,
         reprojection_rms=overall,
         details=FusionDetails(outlier_probability=settings.outlier_probability, orientation=g.orientation,
                               passes=passes, history=hist),
         intrinsics=pose.intrinsics,
         translations=pose.translations,
         frame_ids=cams.frames,
+        warnings=warnings,
     )

@@ -8,10 +8,12 @@ from ...errors import InvalidInputError, NotEnoughDataError
 from ..._validation import as_float_array
 from ..geometry.pinhole import CameraSet, triangulate_points
 
-__all__ = ["scene_orientation_of", "validate_inputs"]
+__all__ = ["are_poses", "scene_orientation_of", "validate_inputs"]
 
 # Points used to decide the scene orientation (the sign of the depths most points agree on).
 _ORIENTATION_SAMPLE = 2_000
+# |λ - 1| below this for every camera: the cameras are poses K [R | t] (from_pose, K, R, t files).
+_POSE_SCALE_TOLERANCE = 1e-6
 
 
 def validate_inputs(observations: object, cameras: object) -> tuple[CameraSet, np.ndarray]:
@@ -30,8 +32,19 @@ def validate_inputs(observations: object, cameras: object) -> tuple[CameraSet, n
     return cams, obs
 
 
+def are_poses(cams: CameraSet) -> bool:
+    """Every camera is exactly K [R | t] with det R = +1 and K[2, 2] = 1 (scale λ = +1): a pose, not a bare P.
+
+    Such cameras fix which side is in front (positive depth); a projection matrix of unknown
+    scale and sign does not (a mirrored world frame looks like points behind every camera).
+    """
+    return bool(np.all(np.abs(cams.decompose().scales - 1.0) <= _POSE_SCALE_TOLERANCE))
+
+
 def scene_orientation_of(cams: CameraSet, obs: np.ndarray) -> int:
-    """The sign of the depths most (linearly triangulated) points agree on."""
+    """+1 for poses (:func:`are_poses`); otherwise the sign of the depths most (linearly triangulated) points agree on."""
+    if are_poses(cams):
+        return 1
     counts = np.isfinite(obs[..., 0]).sum(axis=0)
     sample = np.flatnonzero(counts >= 2)[:_ORIENTATION_SAMPLE]
     if sample.size == 0:

@@ -91,9 +91,13 @@ def theta_to_point(g: ViewGeometry, anchor: np.ndarray, theta: np.ndarray, cov: 
     return X, cov_X
 
 
-def start_pairs(g: ViewGeometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Two-view start in inverse depth anchored at view a: θ, unit-σ covariance, cost (px²), usable."""
+def start_pairs(g: ViewGeometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray, ca: np.ndarray | None = None,
+                cv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Two-view start in inverse depth anchored at view a: θ, unit-σ covariance, cost (px²), usable.
+
+    ``ca``, ``cv`` (n,): each observation's standard deviation relative to σ (default 1); the
+    normal equations and the cost are then whitened.
+    """
     n = xa.shape[0]
     # (α, β, 1) ∝ K_a⁻¹ x̃_a: the anchor view fixes the ray, whatever the depth
     m = np.concatenate([xa, np.ones((n, 1))], axis=1) @ g.K_inv[a].T
@@ -110,14 +114,16 @@ def start_pairs(g: ViewGeometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
     theta = np.concatenate([m[:, :2], rho[:, None]], axis=1)
     cams = np.stack([g.Q[a, a], Qv])  # (2, 3, 4)
     obs = np.stack([xa, xv])  # (2, n, 2)
+    scale = np.ones((2, n)) if ca is None else np.stack([ca, cv])
 
-    def normal_equations(th: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def normal_equations(th: np.ndarray, o: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         pix, _, J = project_each(cams[:, None], th[None])
-        r = o - pix
+        r = (o - pix) / c[..., None]
+        J = J / c[..., None, None]
         return (np.einsum("vnai,vnaj->nij", J, J), np.einsum("vnai,vna->ni", J, r),
                 np.einsum("vna,vna->n", r, r))
 
-    N, g_, cost = normal_equations(theta, obs)
+    N, g_, cost = normal_equations(theta, obs, scale)
     active = np.ones(n, dtype=bool)
     for _ in range(START_ITERATIONS):
         idx = np.flatnonzero(active)
@@ -125,7 +131,7 @@ def start_pairs(g: ViewGeometry, a: int, v: int, xa: np.ndarray, xv: np.ndarray
             break
         step = solve3(N[idx], g_[idx])
         trial = theta[idx] + step
-        Nt, gt, ct = normal_equations(trial, obs[:, idx])
+        Nt, gt, ct = normal_equations(trial, obs[:, idx], scale[:, idx])
         better = np.isfinite(ct) & (ct <= cost[idx])
         acc = idx[better]
         theta[acc], N[acc], g_[acc], cost[acc] = trial[better], Nt[better], gt[better], ct[better]
@@ -155,7 +161,8 @@ class GatedUpdate:
 
 
 def iterated_update(cameras: np.ndarray, prior: np.ndarray, prior_covariances: np.ndarray,
-                    observations: np.ndarray, pixel_std: float, gate: float) -> GatedUpdate:
+                    observations: np.ndarray, pixel_std: float, gate: float,
+                    scales: np.ndarray | None = None) -> GatedUpdate:
     """Gated iterated extended Kalman update of n 3-vector states, each by one 2-D projection.
 
     Each state θ is seen through its own 3 × 4 matrix: pixel = (u / w, v / w) with
@@ -174,6 +181,8 @@ def iterated_update(cameras: np.ndarray, prior: np.ndarray, prior_covariances: n
     observations : (n, 2) pixels (x = column, y = row).
     pixel_std : σ of the image noise, pixels (scales the gate only).
     gate : bound on νᵀ S⁻¹ ν / σ².
+    scales : (n,) each observation's standard deviation relative to σ (default 1): the
+        update is made with the whitened residual and Jacobian (measurement noise c² σ²).
 
     Shapes are not validated: this is the kernel of the fusion loops.
 
@@ -195,10 +204,12 @@ def iterated_update(cameras: np.ndarray, prior: np.ndarray, prior_covariances: n
     True
     """
     Q, P, z = cameras, prior_covariances, observations
+    c = np.ones(prior.shape[0]) if scales is None else np.asarray(scales, dtype=np.float64)
     eye2 = np.eye(2)
     pix, _, H = project_each(Q, prior)
+    H = H / c[:, None, None]
     # The first iterate is the ordinary EKF update; its innovation decides the gate.
-    first = kalman_update(prior, P, z - pix + np.einsum("nij,nj->ni", H, prior), H, eye2)
+    first = kalman_update(prior, P, (z - pix) / c[:, None] + np.einsum("nij,nj->ni", H, prior), H, eye2)
     nis = first.nis / pixel_std**2
     accept = nis <= gate
     theta, cov = prior.copy(), P.copy()
@@ -210,7 +221,8 @@ def iterated_update(cameras: np.ndarray, prior: np.ndarray, prior_covariances: n
         if active.size == 0:
             break
         pix, _, H = project_each(Q[active], theta[active])
-        z_lin = z[active] - pix + np.einsum("nij,nj->ni", H, theta[active])
+        H = H / c[active, None, None]
+        z_lin = (z[active] - pix) / c[active, None] + np.einsum("nij,nj->ni", H, theta[active])
         res = kalman_update(prior[active], P[active], z_lin, H, eye2)
         moved = np.abs(res.x - theta[active]) > IEKF_TOLERANCE * np.sqrt(
             np.abs(np.diagonal(res.P, axis1=1, axis2=2)))
@@ -238,8 +250,8 @@ def residuals_and_cheirality(g: ViewGeometry, obs: np.ndarray, theta: np.ndarray
     return residuals, in_front
 
 
-def pair_starts(g: ViewGeometry, first: np.ndarray, second: np.ndarray, obs: np.ndarray, idx: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pair_starts(g: ViewGeometry, first: np.ndarray, second: np.ndarray, obs: np.ndarray, idx: np.ndarray,
+                scales: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Two-view starts of points idx from views (first, second), which vary per point.
 
     Returns θ (m, 3), unit-σ covariance (m, 3, 3) and the pair cost in px² (inf where the
@@ -251,7 +263,9 @@ def pair_starts(g: ViewGeometry, first: np.ndarray, second: np.ndarray, obs: np.
     for code in np.unique(codes):
         a, v = divmod(int(code), obs.shape[0])
         sel = np.flatnonzero(codes == code)
-        th, P, c, usable = start_pairs(g, a, v, obs[a, idx[sel]], obs[v, idx[sel]])
+        ca = None if scales is None else scales[a, idx[sel]]
+        cv = None if scales is None else scales[v, idx[sel]]
+        th, P, c, usable = start_pairs(g, a, v, obs[a, idx[sel]], obs[v, idx[sel]], ca, cv)
         theta[sel], cov[sel] = th, P
         cost[sel] = np.where(usable, c, np.inf)
     return theta, cov, cost

@@ -53,8 +53,10 @@ def recursive_states(job: Chunk) -> RecursiveStates:
     shape = (n, V) if job.history else (0, 0)
     hist_theta, hist_cov = np.zeros(shape + (3,)), np.zeros(shape + (3, 3))
     hist_mask = np.zeros(shape, dtype=bool)
+    weighted = job.scales is not None
+    scale = np.ascontiguousarray(job.scales.T) if weighted else np.ones((0, 0))
     recursive_pass(np.ascontiguousarray(g.Q), np.ascontiguousarray(g.K_inv), g.depth_sign * float(g.orientation),
-                   obs, float(job.sigma), float(job.gate2), float(job.gate1), START_ITERATIONS, IEKF_ITERATIONS,
+                   obs, scale, weighted, float(job.sigma), float(job.gate2), float(job.gate1), START_ITERATIONS, IEKF_ITERATIONS,
                    IEKF_TOLERANCE, MAX_CONDITION, bool(job.history), theta, cov, anchor, started, stalled, used,
                    rejected, residuals, in_front, hist_theta, hist_cov, hist_mask)
     history = None

@@ -9,13 +9,15 @@ from scipy import stats
 
 from ...errors import InvalidInputError
 from ..._validation import check_count, check_positive
+from ...estimation.noise_model import NOISE_MODELS
 
-__all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS", "FusionSettings",
+__all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_NOISE_MODEL", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS", "FusionSettings",
            "check_orientation"]
 
 FUSION_METHODS = ("recursive", "batch", "pairs")
 DEFAULT_OUTLIER_PROBABILITY = 0.999
 DEFAULT_CHUNK_POINTS = 65_536
+DEFAULT_NOISE_MODEL = "mixture"
 
 
 @dataclass(frozen=True)
@@ -32,6 +34,12 @@ class FusionSettings:
     chunk_points : points processed together (bounds the memory).
     orientation : +1 (points in front of the cameras), -1 (a mirrored reconstruction) or
         None to take the sign most points' depths agree on.
+    noise_model : the model of the image noise fitted to the residuals when σ is estimated
+        (:data:`~kalmansfm.estimation.noise_model.NOISE_MODELS`): ``"gaussian"`` (one σ for
+        every observation, the χ² gate), ``"student-t"`` (heavy tails), ``"mixture"``
+        (Gaussian core and uniform outliers) or ``"student-t+uniform"``; every model but
+        ``"gaussian"`` gives each track a pooled scale.  A given ``pixel_std`` is a Gaussian.
+    track_scales : with a fitted model, give each track its own pooled noise scale.
     """
 
     method: str = "recursive"
@@ -40,6 +48,8 @@ class FusionSettings:
     history: bool = False
     chunk_points: int = DEFAULT_CHUNK_POINTS
     orientation: int | None = None
+    noise_model: str = DEFAULT_NOISE_MODEL
+    track_scales: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
@@ -56,8 +66,11 @@ class FusionSettings:
         object.__setattr__(self, "outlier_probability", p)
         object.__setattr__(self, "chunk_points", check_count("chunk_points", self.chunk_points, 1))
         object.__setattr__(self, "history", bool(self.history))
+        object.__setattr__(self, "track_scales", bool(self.track_scales))
         if self.orientation is not None:
             object.__setattr__(self, "orientation", check_orientation(self.orientation))
+        if self.noise_model not in NOISE_MODELS:
+            raise InvalidInputError(f"noise_model must be one of {', '.join(NOISE_MODELS)}; got {self.noise_model!r}")
 
     @property
     def gate2(self) -> float:

@@ -59,6 +59,9 @@ __all__ = [
 
 # Rays whose directions make an angle smaller than this (radians) are treated as parallel.
 _PARALLEL_SINE = 1e-12
+# With a pixel noise given: rays whose parallax does not fix the depth — its standard deviation above this
+# fraction of the depth, so that three standard deviations reach infinity — count as parallel too.
+_NO_DEPTH = 1.0 / 3.0
 
 
 @dataclass(frozen=True)
@@ -74,7 +77,9 @@ class TriangulationResult:
     jacobians : (L, 3, 4) or (3, 4) — dp/d(x_left, y_left, x_right, y_right).
     depth_scale : (L,) or () — alpha in p = alpha (x_right, y_right, f); p's depth is alpha f.
     status : (L,) or () int8 — a :class:`~.points.PointStatus` value: ``OK``,
-        ``DEGENERATE`` (parallel rays) or ``BEHIND_CAMERA``.
+        ``DEGENERATE`` (parallel rays; with a pixel noise given, also rays whose parallax is
+        within the noise: the depth's standard deviation above a third of the depth) or
+        ``BEHIND_CAMERA``.
     """
 
     points: np.ndarray
@@ -175,8 +180,9 @@ def triangulate_midpoint(
     -------
     TriangulationResult
         Points in the right camera's frame.  For ``(L, 2)`` input a landmark whose
-        rays are parallel gets NaN and ``status == PointStatus.DEGENERATE``; a
-        single landmark given as ``(2,)`` raises instead.
+        rays are parallel (with ``pixel_std``: parallel within the noise, the depth's
+        standard deviation above a third of the depth) gets NaN and ``status ==
+        PointStatus.DEGENERATE``; a single landmark given as ``(2,)`` raises instead.
 
     Raises
     ------
@@ -250,6 +256,17 @@ def triangulate_midpoint(
     # eq. 34: Cov(p) = sum_c J[:, c] J[:, c]^T sigma_c^2
     cov = np.einsum("lic,lc,ljc->lij", J, variances, J)
 
+    if pixel_std is not None:
+        # the depth's standard deviation along the right ray against the depth: no parallax beyond the noise
+        rhat = r / np.linalg.norm(r, axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            depth_std = np.sqrt(np.abs(np.einsum("li,lij,lj->l", rhat, cov, rhat)))
+            no_depth = ~(depth_std <= _NO_DEPTH * np.abs(alpha) * np.linalg.norm(r, axis=1))
+        if single and no_depth[0] and not parallel[0]:
+            raise InvalidInputError(
+                "the two rays are parallel within the image noise (no significant parallax): the depth is not "
+                "determined, the point cannot be triangulated")
+        parallel = parallel | (no_depth & np.any(variances > 0, axis=1))
     status = np.where(parallel, PointStatus.DEGENERATE, np.where(alpha > 0, PointStatus.OK, PointStatus.BEHIND_CAMERA))
     status = status.astype(np.int8)
     p[parallel] = np.nan

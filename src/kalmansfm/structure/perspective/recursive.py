@@ -63,6 +63,7 @@ from ..reconstruction import Reconstruction
 from .incremental import relative_pose
 from ..fusion import iterated_update
 from ..points import PointStatus
+from ..geometry.pinhole import CameraSet, project_points, triangulate_points
 from ..geometry.rotation import cross_matrix
 
 __all__ = ["reconstruct_recursive"]
@@ -91,22 +92,56 @@ class _Motion:
         self.dof = dof
 
 
+def _from_guess(na: np.ndarray, nb: np.ndarray, guess: tuple[np.ndarray, np.ndarray], threshold: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pose (R, t) of the guess, the matches that triangulate in front of both views within ``threshold``, their points."""
+    R, direction = guess
+    t = -R @ direction
+    cams = CameraSet.from_pose(np.eye(3), np.stack([np.eye(3), R]), np.stack([np.zeros(3), t]))
+    tri = triangulate_points(cams, np.stack([na, nb]), orientation=1)
+    good = tri.status == PointStatus.OK
+    pix = project_points(cams, np.where(good[:, None], tri.points, 0.0)).pixels
+    err = np.linalg.norm(pix - np.stack([na, nb]), axis=2).max(axis=0)
+    keep = np.flatnonzero(good & (err < threshold))
+    return R, t, keep, tri.points[keep]
+
+
 def _relative_orientation(obs: np.ndarray, K: np.ndarray, normalised: np.ndarray, a: int, b: int,
-                          settings: PerspectiveSettings) -> _Motion | None:
+                          settings: PerspectiveSettings, guess: tuple[np.ndarray, np.ndarray] | None = None
+                          ) -> tuple[_Motion | None, str]:
+    """The pair's relative orientation, or None and why not.
+
+    The essential matrix of a narrow view of a small object is ambiguous: one that explains
+    every match may put none of them in front of both cameras.  Then ``guess`` — the
+    previous pair's motion (rotation, unit baseline direction), a good start along a smooth
+    path such as a turntable — is tried as the start of the two-view adjustment instead.
+    """
     seen = np.isfinite(obs[a, :, 0]) & np.isfinite(obs[b, :, 0])
     tracks = np.flatnonzero(seen)
     focal = np.sqrt(K[[a, b], 0, 0] * K[[a, b], 1, 1])
     need = 2 * settings.min_registration_points
     if len(tracks) < need:
-        return None
-    pose = relative_pose(normalised[a, tracks], normalised[b, tracks],
-                         settings.outlier_threshold_px / np.sqrt(focal.prod()))
-    if pose is None or len(pose.inliers) < need \
-            or pose.homography_inliers >= _DEGENERATE_HOMOGRAPHY_SHARE * pose.essential_inliers:
-        return None
-    tracks, X = tracks[pose.inliers], pose.points
-    R0 = np.stack([np.eye(3), pose.rotation])
-    C0 = np.stack([np.zeros(3), -pose.rotation.T @ pose.translation])
+        return None, f"frames {a} and {b} share {len(tracks)} tracks (at least {need} needed)"
+    threshold = settings.outlier_threshold_px / np.sqrt(focal.prod())
+    pose = relative_pose(normalised[a, tracks], normalised[b, tracks], threshold)
+    if pose is not None and pose.homography_inliers >= _DEGENERATE_HOMOGRAPHY_SHARE * pose.essential_inliers:
+        return None, (f"no parallax between frames {a} and {b}: a homography explains {pose.homography_inliers} of "
+                      f"the {pose.essential_inliers} matches (a plane or a pure rotation)")
+    if pose is not None and len(pose.inliers) >= need:
+        R0_b, t0_b, inliers, X = pose.rotation, pose.translation, pose.inliers, pose.points
+    else:
+        why = ("no essential matrix" if pose is None else
+               f"the essential matrix is ambiguous ({pose.essential_inliers} matches fit it, {len(pose.inliers)} lie "
+               "in front of both cameras)")
+        if guess is None:
+            return None, f"frames {a} and {b}: {why}"
+        R0_b, t0_b, inliers, X = _from_guess(normalised[a, tracks], normalised[b, tracks], guess, threshold)
+        if len(inliers) < need:
+            return None, (f"frames {a} and {b}: {why}, and the previous pair's motion places only {len(inliers)} "
+                          f"matches in front within the outlier threshold (at least {need} needed)")
+    tracks = tracks[inliers]
+    R0 = np.stack([np.eye(3), R0_b])
+    C0 = np.stack([np.zeros(3), -R0_b.T @ t0_b])
     pix = obs[[a, b]][:, tracks]
     observations = ObservationList.from_dense(pix)
     Kab = K[[a, b]]
@@ -117,7 +152,8 @@ def _relative_orientation(obs: np.ndarray, K: np.ndarray, normalised: np.ndarray
                      | (depth <= 0))
     keep = ~bad
     if keep.sum() < need:
-        return None
+        return None, (f"frames {a} and {b}: only {int(keep.sum())} matches are within the outlier threshold after "
+                      f"the two-view adjustment (at least {need} needed)")
     tracks, pix = tracks[keep], pix[:, keep]
     observations = ObservationList.from_dense(pix)
     fit = bundle_adjust(fit.rotations, fit.centres, fit.points[keep], observations, Kab)
@@ -141,7 +177,7 @@ def _relative_orientation(obs: np.ndarray, K: np.ndarray, normalised: np.ndarray
     sensitivity[observations.points[in_b]] = -np.linalg.solve(
         V[observations.points[in_b]], np.einsum("nki,nkj->nij", J_p[in_b], J_c[in_b]))
     dof = 2 * len(observations) - 3 * len(tracks) - 5
-    return _Motion(R[1], C[1], covariance, tracks, X, V, sensitivity, float(np.sum(r**2)), dof)
+    return _Motion(R[1], C[1], covariance, tracks, X, V, sensitivity, float(np.sum(r**2)), dof), ""
 
 
 def _scale(x: np.ndarray, P: np.ndarray, motion: _Motion, sigma: float) -> tuple[float, np.ndarray] | None:
@@ -197,15 +233,32 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     normalised = xn[..., :2] / xn[..., 2:3]
     # the chain starts at the first consecutive pair with a relative orientation and runs until one fails;
     # one relative orientation per frame pair (not per point)
-    first = next((k for k in range(1, F) if (m := _relative_orientation(obs, K, normalised, k - 1, k, settings))
-                  is not None), None)
+    reasons: list[str] = []
+    first, m = None, None
+    for k in range(1, F):
+        m, why = _relative_orientation(obs, K, normalised, k - 1, k, settings)
+        if m is not None:
+            first = k
+            break
+        reasons.append(why)
     if first is None:
-        raise NotEnoughDataError("no two consecutive frames give a relative orientation: too few shared tracks, "
-                                 "or no parallax between them (the recursive method needs parallax between "
-                                 "consecutive frames; try method='batch')")
+        raise NotEnoughDataError("no two consecutive frames give a relative orientation (the recursive method needs "
+                                 "parallax between consecutive frames; try method='batch'): " + "; ".join(reasons[:3]))
+    # pairs before the first one found: their own essential matrix failed; start them from the next pair's motion
+    while first > 1:
+        earlier, why = _relative_orientation(obs, K, normalised, first - 2, first - 1, settings,
+                                             guess=(m.rotation, m.direction))
+        if earlier is None:
+            reasons[first - 2] = why
+            break
+        first, m = first - 1, earlier
+        del reasons[first - 1:]
     motions: dict[int, _Motion | None] = {first: m}
+    stop_reason = ""
     for k in range(first + 1, F):
-        motions[k] = _relative_orientation(obs, K, normalised, k - 1, k, settings)
+        previous = motions[k - 1]
+        motions[k], stop_reason = _relative_orientation(obs, K, normalised, k - 1, k, settings,
+                                                        guess=(previous.rotation, previous.direction))
         if motions[k] is None:
             break
     valid = [m for m in motions.values() if m is not None]
@@ -215,6 +268,7 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     x = np.full((P, 3), np.nan)
     cov = np.full((P, 3, 3), np.nan)
     alive = np.zeros(P, bool)
+    lost = np.zeros(P, bool)
     used = np.zeros((F, P), bool)
     # chained poses in the chain's first frame: x_cam_k = R_k (X - C_k); covariance of (δω, δC) with that frame
     # and the first baseline fixed
@@ -253,13 +307,19 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
         x[idx] = moved
         # -- update with frame k's observations (gated iterated EKF on the 2-D projection)
         seen_k = idx[np.isfinite(obs[k, idx, 0])]
+        # a point whose covariance stopped being positive definite (no depth: a far or nearly parallel track)
+        # leaves the filter
+        broken = seen_k[~(np.linalg.eigvalsh(np.nan_to_num(cov[seen_k], nan=-1.0))[:, 0] > 0)]
+        if broken.size:
+            alive[broken], lost[broken] = False, True
+            seen_k = np.setdiff1d(seen_k, broken)
         if len(seen_k):
             Q = np.broadcast_to(kz[k], (len(seen_k), 3, 4))
             up = iterated_update(Q, x[seen_k], cov[seen_k] / sigma**2, obs[k, seen_k], sigma, gate)
             x[seen_k], cov[seen_k] = up.states, up.covariances * sigma**2
             used[k, seen_k[up.accepted]] = True
         # -- new tracks from the pair, moved into frame k
-        new = ~alive[motion.tracks]
+        new = ~alive[motion.tracks] & ~lost[motion.tracks]
         tracks = motion.tracks[new]
         Y = s * motion.points[new]
         x[tracks] = (Y - s * C_hat) @ R.T
@@ -296,6 +356,23 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     registered = frame_status == FrameStatus.REGISTERED
     ok = alive & np.isfinite(X).all(axis=1)
     status = np.full(P, PointStatus.TOO_FEW_VIEWS, dtype=np.int8)
+    status[lost] = PointStatus.DEGENERATE
+    # a point that does not fit its own observations with the chained poses (the chain's accumulated error
+    # along a long path) is not trusted
+    frames = np.flatnonzero(frame_status == FrameStatus.REGISTERED)
+    tracks = np.flatnonzero(ok)
+    o = ObservationList.from_dense(obs[np.ix_(frames, tracks)], (used & ok[None])[np.ix_(frames, tracks)])
+    r, _ = reprojection_residuals(R_chain[frames], C_chain[frames], X[tracks], o, K[frames])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        point_rms = np.sqrt(np.bincount(o.points, np.sum(r**2, axis=1), minlength=tracks.size)
+                            / np.bincount(o.points, minlength=tracks.size))
+    misfit = tracks[~(point_rms <= settings.outlier_threshold_px)]
+    status[misfit] = PointStatus.UNRELIABLE
+    ok[misfit] = False
+    if misfit.size:
+        warnings.append(f"{misfit.size} points do not fit their own observations with the chained poses (RMS above "
+                        f"{settings.outlier_threshold_px:g} px): marked 'unreliable' — the chain of relative "
+                        "orientations accumulates error along the path; method 'batch' adjusts it as a whole")
     status[ok] = PointStatus.OK
     points = np.where(ok[:, None], X, np.nan)
     point_cov = np.full((P, 3, 3), np.nan)
@@ -309,8 +386,14 @@ def reconstruct_recursive(observations: np.ndarray, intrinsics: np.ndarray,
     dof = 2 * len(o) - 6 * len(frames) - 3 * len(tracks) + 7
     missing = np.flatnonzero(~registered)
     if missing.size:
+        why = []
+        if first > 1:
+            why.append(f"frames before {first - 1} are not reached because " + "; ".join(reasons))
+        if stop_reason:
+            why.append(f"the chain stops at frame {last + 1}: {stop_reason}")
         warnings.append(f"{missing.size} of {F} frames could not be registered (frames {frame_runs(missing)}): "
-                        "the chain of relative orientations does not reach them; they have no pose")
+                        "the chain of relative orientations does not reach them; they have no pose"
+                        + (f" ({'; '.join(why)})" if why else ""))
     warnings.append("the recursive method fuses each point on its own and ignores how the shared motion estimates "
                     "correlate the points: its covariances are over-confident, the more so the closer consecutive "
                     "frames are (docs/perspective.md); method 'batch' gives calibrated covariances")
