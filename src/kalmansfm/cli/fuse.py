@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..pipeline import FuseRequest, run_fuse
 from ..pipeline.cluster import check_cluster
+from ..estimation.noise_model import NOISE_MODELS
 from ..structure.fusion import FUSION_METHODS, FusionSettings
 from ._options import print_warnings
 
@@ -48,6 +49,12 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
                    "(2 degrees of freedom per observation minus 3 per point, after outlier rejection)")
     p.add_argument("--outlier-prob", type=float, default=_DEFAULTS.outlier_probability, metavar="P",
                    help="an observation beyond the chi-square quantile of P is rejected (1 turns the test off)")
+    p.add_argument("--noise-model", choices=NOISE_MODELS, default=_DEFAULTS.noise_model,
+                   help="the image noise fitted to the residuals when --pixel-std is auto: gaussian (one sigma, the "
+                   "report's), student-t, mixture (Gaussian + uniform outliers) or student-t+uniform; each observation "
+                   "is weighted by it and the covariances follow from it (docs/fusion.md)")
+    p.add_argument("--track-scales", action="store_true",
+                   help="with a fitted noise model, give each track its own noise scale (pooled toward the common one)")
     p.add_argument("--chunk-points", type=int, default=_DEFAULTS.chunk_points,
                    help="points fused together (bounds the memory)")
     p.add_argument("--workers", type=int, default=None,
@@ -59,17 +66,21 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     check_cluster(args.scheduler, args.workers, scheduler_name="--scheduler", workers_name="--workers")
-    settings = FusionSettings(args.method, args.pixel_std, args.outlier_prob, True, args.chunk_points)
+    settings = FusionSettings(method=args.method, pixel_std=args.pixel_std, outlier_probability=args.outlier_prob,
+                              history=True, chunk_points=args.chunk_points, noise_model=args.noise_model,
+                              track_scales=args.track_scales)
     result = run_fuse(FuseRequest(args.tracks, args.cameras, args.out, settings, scheduler=args.scheduler,
                                   workers=args.workers, plot=not args.no_plot))
     f = result.summary.reconstruction
     assert f is not None  # run_fuse always records its reconstruction
     print(f"views: {f.frames}  tracks: {f.points}  method: {f.method}")
-    print(f"fused: {f.reconstructed}  too few views: {f.too_few_views}  degenerate: {f.degenerate}  "
-          f"behind camera: {f.behind_camera}")
+    print(f"fused: {f.reconstructed}  unreliable: {f.unreliable}  too few views: {f.too_few_views}  "
+          f"degenerate: {f.degenerate}  behind camera: {f.behind_camera}")
     print(f"observations: {f.observations}  rejected as outliers: {f.rejected}")
     how = "estimated, " + f"{f.degrees_of_freedom} degrees of freedom" if f.noise_estimated else "given"
-    print(f"pixel noise: {f.noise_std:.4g} px ({how})")
+    shown = {"outlier_share": "outliers {:.2%}", "tail_dof": "tail dof {:.3g}"}
+    model = "".join(", " + shown[k].format(v) for k, v in f.noise_parameters if k in shown)
+    print(f"pixel noise: {f.noise_std:.4g} px ({f.noise_model}{model}; {how})")
     if f.reprojection_rms_px is not None:
         print(f"reprojection RMS: {f.reprojection_rms_px:.4g} px  median point uncertainty: {f.median_point_std:.4g}")
     print_warnings(result.summary)

@@ -90,8 +90,11 @@ def write_reconstruction(rec: Reconstruction, path: str | os.PathLike[str], *, i
                   obs_residual=obs.residual.astype(np.float32))
     meta = {"format": _FORMAT, "kind": rec.kind, "method": rec.method, "camera_model": rec.camera_model,
             "covariance_gauge": rec.covariance_gauge, "reprojection_rms": rec.reprojection_rms,
-            "warnings": list(rec.warnings), "noise": asdict(rec.noise), "details": _details_json(rec.details),
+            "warnings": list(rec.warnings), "noise": {k: v for k, v in asdict(rec.noise).items() if k != "observation_std"},
+            "details": _details_json(rec.details),
             "image_names": image_names, "image_size": None if image_size is None else [int(v) for v in image_size]}
+    if rec.noise.observation_std is not None:  # each observation's own σ, stored per observation
+        arrays["obs_std"] = np.asarray(rec.noise.observation_std)[obs.frame, obs.point]
     arrays["meta"] = np.frombuffer(json.dumps(meta, allow_nan=True).encode("utf-8"), dtype=np.uint8)
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **arrays)
@@ -114,8 +117,13 @@ def read_reconstruction(path: str | os.PathLike[str]) -> Reconstruction:
         details = details_type(**{k: (np.asarray(v) if k in ("singular_values", "metric_matrix") else
                                       tuple(v) if k == "initial_pair" else v) for k, v in meta["details"].items()})
         noise = meta["noise"]
-        noise = NoiseEstimate(**{**noise, "parameters": tuple(tuple(p) for p in noise.get("parameters", ()))})
         shape = tuple(int(v) for v in data["obs_shape"])
+        per_observation = None
+        if "obs_std" in data:
+            per_observation = np.full(shape, np.nan)
+            per_observation[data["obs_frame"], data["obs_point"]] = data["obs_std"]
+        noise = NoiseEstimate(**{**noise, "parameters": tuple(tuple(p) for p in noise.get("parameters", ()))},
+                              observation_std=per_observation)
         observations = Observations.from_sparse(shape, data["obs_frame"], data["obs_point"], data["obs_xy"],
                                                 used=data["obs_used"], residual=data["obs_residual"],
                                                 rejected=data["obs_rejected"])

@@ -134,6 +134,8 @@ class ReconstructionMetrics:
     intrinsics : calibrated: where K came from (a K.csv, or the focal length and image size).
     camera_choice : with ``--camera auto``, which model was kept and why.
     skipped_frames : frames that had observations but no camera (fusion: skipped).
+    noise_parameters : the noise model's other fitted parameters, (name, value) pairs (e.g. the outlier
+        share, the tails' degrees of freedom, the serial correlation of the residuals along a track).
     """
 
     kind: str
@@ -173,6 +175,7 @@ class ReconstructionMetrics:
     intrinsics: str | None = None
     camera_choice: str | None = None
     skipped_frames: tuple[int, ...] = ()
+    noise_parameters: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)

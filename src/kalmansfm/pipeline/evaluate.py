@@ -163,6 +163,7 @@ def reconstruction_metrics(
         intrinsics=intrinsics,
         camera_choice=camera_choice,
         skipped_frames=tuple(int(f) for f in skipped_frames),
+        noise_parameters=tuple((str(name), float(value)) for name, value in noise.parameters),
     )
 
 

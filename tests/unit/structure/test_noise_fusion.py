@@ -5,7 +5,7 @@ import pytest
 from scipy import stats
 
 import kalmansfm.structure.fusion.recursive as recursive_method
-from fusion_recursive import recursive_states_numpy
+from reference.fusion_recursive import recursive_states_numpy
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus, factorize, triangulate_midpoint
