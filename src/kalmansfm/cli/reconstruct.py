@@ -4,11 +4,16 @@ reconstruction with ``--camera perspective``)."""
 from __future__ import annotations
 
 import argparse
+
+import numpy as np
 from pathlib import Path
 
 
 from ..errors import InvalidInputError
+from ..mapping import MappingSettings
+from ..mapping.settings import FEATURE_OUTLIER_THRESHOLD_PX
 from ..pipeline import Affine, Auto, Perspective, ReconstructRequest, run_reconstruct
+from ..pipeline.images import ImagesRequest, is_image_input, run_reconstruct_images
 from ..pipeline.perspective import CAMERA_MODELS
 from ..pipeline.requests import Camera
 from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
@@ -30,7 +35,10 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "cameras.csv, structure.ply, reconstruction.png and summary.json. --camera auto runs both and keeps "
         "the perspective model when its reprojection RMS is at most the affine model's.",
     )
-    p.add_argument("tracks", metavar="TRACKS", type=Path, help="tracks.csv, tracks.npz or a frame,track_id,x,y CSV")
+    p.add_argument("tracks", metavar="INPUT", type=Path,
+                   help="tracks.csv, tracks.npz, a frame,track_id,x,y CSV or the folder of a track run; or, with "
+                   "--camera perspective, images (a folder, a glob or a video: frame k is the k-th image in natural "
+                   "order) reconstructed by the feature front end")
     p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output folder")
     defaults = PerspectiveSettings()
     p.add_argument("--camera", choices=CAMERA_MODELS, default="affine", help="camera model")
@@ -44,9 +52,11 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument("--method", choices=PERSPECTIVE_METHODS, default=defaults.method,
                    help="perspective: bundle adjustment (batch) or the report's relative orientations and recursive "
                    "fusion (recursive)")
-    p.add_argument("--outlier-threshold", metavar="PX", type=float, default=defaults.outlier_threshold_px,
+    p.add_argument("--outlier-threshold", metavar="PX", type=float, default=None,
                    help="perspective: an observation farther than this from where its other views put the point is "
-                   "an outlier (unless the estimated noise makes the chi-square bound wider)")
+                   "an outlier (unless the estimated noise makes the chi-square bound wider); default "
+                   f"{defaults.outlier_threshold_px:g} px for tracks, {FEATURE_OUTLIER_THRESHOLD_PX:g} px for the "
+                   "feature tracks of images")
     p.add_argument(
         "--no-weights",
         action="store_true",
@@ -73,10 +83,22 @@ def run(args: argparse.Namespace) -> int:
         affine = Affine(weighted=not args.no_weights, max_iterations=args.max_iterations)
         camera: Camera = affine
         if args.camera != "affine":
-            settings = PerspectiveSettings(method=args.method, outlier_threshold_px=args.outlier_threshold)
+            images_in = is_image_input(args.tracks)
+            threshold = args.outlier_threshold
+            if threshold is None:
+                threshold = FEATURE_OUTLIER_THRESHOLD_PX if images_in else PerspectiveSettings().outlier_threshold_px
+            settings = PerspectiveSettings(method=args.method, outlier_threshold_px=threshold)
             perspective = Perspective(intrinsics=args.intrinsics, focal=args.focal, settings=settings,
                                       image_size=None if args.image_size is None else tuple(args.image_size))
             camera = perspective if args.camera == "perspective" else Auto(perspective, affine)
+        if is_image_input(args.tracks):
+            if args.camera != "perspective":
+                raise InvalidInputError(f"{args.tracks} holds images: reconstruct them with --camera perspective and "
+                                        "--intrinsics or --focal (or track them first)")
+            images = run_reconstruct_images(ImagesRequest(args.tracks, args.out, camera, plot=not args.no_plot,
+                                                          settings=MappingSettings(reconstruction=settings)))
+            _print_images(images)
+            return 0
         result = run_reconstruct(ReconstructRequest(args.tracks, args.out, camera, smooth=args.smooth,
                                                     plot=not args.no_plot))
     s = result.summary.reconstruction
@@ -94,6 +116,21 @@ def run(args: argparse.Namespace) -> int:
     print_warnings(result.summary)
     print(f"wrote {args.out}")
     return 0
+
+
+def _print_images(run) -> None:
+    r, p = run.result, run.summary.reconstruction
+    counts = [len(f.keypoints) for f in r.features]
+    graph = r.match_graph
+    print(f"images: {len(r.features)} of {r.image_size[0]}x{r.image_size[1]}; median {int(np.median(counts))} features "
+          f"per image; match graph: {int(graph.verified.sum())} of {len(graph.candidates)} pairs verified")
+    print(f"tracks: {p.points}  observations: {p.observations}  guided matching added "
+          f"{r.guided.added_observations}, merged {r.guided.merged_tracks} tracks")
+    print(f"registered: {p.registered_frames}/{p.frames}  points: {p.reconstructed}  reprojection RMS "
+          f"{p.reprojection_rms_px:.3g} px; pixel noise sigma {p.noise_std:.3g} px")
+    print(f"intrinsics: {p.intrinsics}")
+    print_warnings(run.summary)
+    print(f"wrote {run.out_dir}")
 
 
 def _print_perspective(result) -> None:

@@ -27,6 +27,7 @@ from .drawing import track_colors  # noqa: E402
 
 __all__ = [
     "covariance_trace_figure",
+    "match_graph_figure",
     "status_timeline_figure",
     "survival_figure",
     "singular_values_figure",
@@ -436,4 +437,24 @@ def camera_path_figure(centres: np.ndarray, frames: Sequence[int], points: np.nd
     if np.isfinite(low):
         mappable = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.LogNorm(low, high), cmap="viridis")
         fig.colorbar(mappable, ax=axes, shrink=0.8, label="point uncertainty √(tr Σ / 3)")
+    return _figure_png(fig)
+
+
+def match_graph_figure(inliers: np.ndarray, registered: Sequence[bool]) -> bytes:
+    """The match graph of an image set as a matrix: verified matches between images i and j (log colour),
+    white where a pair was not matched or failed; the labels of views without a camera in red."""
+    n = inliers.shape[0]
+    fig, ax = plt.subplots(figsize=(min(9.0, 2.5 + 0.12 * n), min(8.0, 2.0 + 0.12 * n)))
+    shown = np.where(inliers > 0, inliers, np.nan)
+    image = ax.imshow(np.log10(shown), cmap="viridis", interpolation="nearest")
+    fig.colorbar(image, ax=ax, label="log10 verified matches")
+    step = max(1, -(-n // 16))
+    ticks = np.arange(0, n, step)
+    ax.set_xticks(ticks, [str(t) for t in ticks], fontsize=7)
+    ax.set_yticks(ticks, [str(t) for t in ticks], fontsize=7)
+    for label, t in zip(ax.get_yticklabels(), ticks):
+        if not registered[t]:
+            label.set_color("#d62728")
+    ax.set_xlabel("image j")
+    ax.set_ylabel("image i")
     return _figure_png(fig)

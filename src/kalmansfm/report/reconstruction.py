@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..io.run_folder import RunFolder
+import numpy as np
+
+from ..io._csv import read_rows
+from ..io.run_folder import RunFolder, run_file
 from ..io.summary import ReconstructionMetrics
 from . import figures
 from . import markup as m
@@ -109,4 +112,26 @@ def section_reconstruction(run: RunFolder) -> str | None:
     for name, caption in _FIGURES:
         if name in run.figures:
             parts.append(m.figure(run.figures[name].read_bytes(), caption))
+    parts.append(_views_and_pairs(run))
+    return "".join(parts)
+
+
+def _views_and_pairs(run: RunFolder) -> str:
+    """A run from images: which views got a camera (and why not), and the match graph between them."""
+    listed = set(run.summary.files)
+    if "views.csv" not in listed or "pairs.csv" not in listed:
+        return ""
+    views = [fields for _, fields in read_rows(run_file(run.path, "views.csv"), required=("view", "status")).rows]
+    pairs = [fields for _, fields in read_rows(run_file(run.path, "pairs.csv"), required=("i", "j")).rows]
+    n = len(views)
+    counts = np.zeros((n, n))
+    for i, j, _, inliers in pairs:
+        counts[int(i), int(j)] = counts[int(j), int(i)] = float(inliers)
+    missing = [(int(v), name, status, reason) for v, name, status, reason in views if status != "registered"]
+    parts = ["<h3>Views and the match graph</h3>",
+             m.figure(figures.match_graph_figure(counts, [s == "registered" for _, _, s, _ in views]),
+                      f"Verified matches between every pair of the {n} images that was matched (white: not matched "
+                      f"or failed verification); {len(pairs)} pairs tried. Views without a camera are marked in red.")]
+    if missing:
+        parts.append(m.table(["view", "image", "status", "why"], missing))
     return "".join(parts)

@@ -1,0 +1,64 @@
+"""``kalmansfm reconstruct IMAGES --camera perspective``: cameras straight from images, views accounted for."""
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+
+from kalmansfm.cli.main import main
+from kalmansfm.io import read_summary
+from kalmansfm.io.cameras import read_cameras
+from kalmansfm.io.intrinsics import intrinsics_csv
+from kalmansfm.report import build_report
+from kalmansfm.scenes.textured import textured_views
+from kalmansfm.structure import align_similarity
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    base = tmp_path_factory.mktemp("images")
+    views = textured_views(frames=8, arc_deg=140.0, seed=6)
+    (base / "images").mkdir()
+    for k, image in enumerate(views.images):
+        cv2.imwrite(str(base / "images" / f"view{k}.png"), image)
+    (base / "K.csv").write_text(intrinsics_csv([0], views.intrinsics[None]))
+    return base, views
+
+
+def test_images_give_every_camera_and_the_run_keeps_the_match_graph(folder, capsys):
+    base, views = folder
+    assert main(["reconstruct", str(base / "images"), "--camera", "perspective", "--intrinsics", str(base / "K.csv"),
+                 "--out", str(base / "run"), "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert "registered: 8/8" in printed and "match graph:" in printed
+    run = base / "run"
+    summary = read_summary(run / "summary.json")
+    assert summary.reconstruction.registered_frames == 8 and summary.reconstruction.kind == "perspective"
+    for name in ("pairs.csv", "views.csv", "tracks.csv", "cameras.csv", "reconstruction.npz"):
+        assert name in summary.files
+    with open(run / "views.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [r["image"] for r in rows] == [f"view{k}.png" for k in range(8)]
+    assert {r["status"] for r in rows} == {"registered"}
+    # the cameras are the true ones up to a similarity
+    cams = read_cameras(run / "cameras.csv")
+    centres = cams.decompose().centers
+    fit = align_similarity(centres, views.centres[cams.frames])
+    radius = np.sqrt(np.mean(np.sum((views.centres - views.centres.mean(0)) ** 2, axis=1)))
+    assert fit.rms < 0.01 * radius
+    html = build_report(run).read_text()
+    assert "Views and the match graph" in html
+
+
+def test_images_need_a_perspective_camera_and_a_folder_of_one_image_is_refused(folder, tmp_path, capsys):
+    base, _ = folder
+    assert main(["reconstruct", str(base / "images"), "--out", str(tmp_path / "a")]) == 2
+    assert "holds images: reconstruct them with --camera perspective" in capsys.readouterr().err
+    one = tmp_path / "one"
+    one.mkdir()
+    cv2.imwrite(str(one / "a.png"), np.zeros((40, 40), np.uint8))
+    assert main(["reconstruct", str(one), "--camera", "perspective", "--focal", "500", "--out",
+                 str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and not (tmp_path / "b").exists()
