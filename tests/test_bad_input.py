@@ -141,9 +141,9 @@ CASES = [
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_one.csv --out {out}", "tracks_ok.csv: 1 of its 4 frame(s) have a camera"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/missing.csv --out {out}", "missing.csv: no such file"),
     ("fuse", "{d}/tracks_no_y.csv --cameras {d}/cams_ok.csv --out {out}", "tracks_no_y.csv: line 1: missing column(s) y; expected frame,track_id,x,y"),
-    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --pixel-std -1", "pixel_std must be finite and > 0"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --pixel-std -1", "--pixel-std must be finite and > 0"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --pixel-std some", "argument --pixel-std"),
-    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --outlier-prob 2", "outlier_probability must be in (0, 1]"),
+    ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --outlier-prob 2", "--outlier-prob must be in (0, 1]"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --method ekf", "argument --method: invalid choice"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --workers 0", "workers must be an integer >= 1"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
@@ -157,7 +157,7 @@ CASES = [
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/fifo.csv --out {out}", "fifo.csv is a named pipe (FIFO), not a file (given as --cameras)"),
     ("fuse", "{d}/loop.csv --cameras {d}/cams_ok.csv --out {out}", "loop.csv is a symbolic link loop (given as TRACKS)"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --pixel-std 1e300",
-     "--pixel-std 1e+300: too far from any sensible value to compute with"),
+     "--pixel-std must be between 1e-09 and 1e+06 pixels"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {d}/only_git", "only_git is not empty and holds no kalmansfm run"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {d}/run_with_html", "holds mine.html, which its kalmansfm run did not write"),
     ("track", "{d}/fifo.avi --out {out}", "fifo.avi is a named pipe (FIFO), not a file (given as INPUT)"),
@@ -407,7 +407,7 @@ def test_bad_input_is_refused_in_one_line_and_nothing_is_written(
         ("batch scene:1 --out {out} --scheduler notaurl", "cannot use the Dask scheduler 'notaurl'"),
         # NumPy's "overflow encountered" warnings used to come first (issue 30)
         ("reconstruct {d}/perspective.csv --out {out} --camera perspective --focal 1e-300 --image-size 640 480 --quiet",
-         "no frame pair gives an essential matrix"),
+         "--focal must be between 0.001 and 1e+07 pixels"),
         ("fuse {d}/tracks_ok.csv --cameras {d}/fifo.csv --out {out}", "fifo.csv is a named pipe (FIFO)"),  # no hang
     ],
 )

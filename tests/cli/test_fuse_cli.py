@@ -142,11 +142,11 @@ def test_bad_files_exit_2_with_one_line_and_write_nothing(scene_files, capsys, c
 @pytest.mark.parametrize(
     "options, message",
     [
-        (["--pixel-std", "-1"], "pixel_std must be finite and > 0"),
+        (["--pixel-std", "-1"], "--pixel-std must be finite and > 0"),
         (["--pixel-std", "lots"], "must be 'auto' or a number of pixels"),
-        (["--outlier-prob", "0"], r"outlier_probability must be in \(0, 1\]"),
+        (["--outlier-prob", "0"], r"--outlier-prob must be in \(0, 1\]"),
         (["--method", "ekf"], "invalid choice"),
-        (["--chunk-points", "0"], "chunk_points must be an integer >= 1"),
+        (["--chunk-points", "0"], "--chunk-points must be an integer >= 1"),
         (["--workers", "0"], "workers must be an integer >= 1"),
         (["--workers", "2", "--scheduler", "tcp://nowhere:1"], "not both"),
     ],

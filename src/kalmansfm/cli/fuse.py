@@ -9,7 +9,7 @@ from ..pipeline import FuseRequest, run_fuse
 from ..pipeline.cluster import check_cluster
 from ..estimation.noise_model import NOISE_MODELS
 from ..structure.fusion import FUSION_METHODS, FusionSettings
-from ._options import print_warnings
+from ._options import as_typed, print_warnings
 
 _DEFAULTS = FusionSettings()
 
@@ -66,9 +66,10 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     check_cluster(args.scheduler, args.workers, scheduler_name="--scheduler", workers_name="--workers")
-    settings = FusionSettings(method=args.method, pixel_std=args.pixel_std, outlier_probability=args.outlier_prob,
-                              history=True, chunk_points=args.chunk_points, noise_model=args.noise_model,
-                              track_scales=args.track_scales)
+    with as_typed({"pixel_std": "--pixel-std", "outlier_probability": "--outlier-prob", "chunk_points": "--chunk-points"}):
+        settings = FusionSettings(method=args.method, pixel_std=args.pixel_std, outlier_probability=args.outlier_prob,
+                                  history=True, chunk_points=args.chunk_points, noise_model=args.noise_model,
+                                  track_scales=args.track_scales)
     result = run_fuse(FuseRequest(args.tracks, args.cameras, args.out, settings, scheduler=args.scheduler,
                                   workers=args.workers, plot=not args.no_plot))
     f = result.summary.reconstruction

@@ -19,6 +19,8 @@ in :mod:`._linalg`.
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -259,6 +261,19 @@ def innovation_statistics(
     return InnovationStatistics(y, S_out, nis, ll)
 
 
+def _check_memory(shape: tuple[int, ...], itemsize: int) -> None:
+    """Refuse N filters whose states and covariances cannot fit in this machine's memory, naming ``x``."""
+    N, n = shape
+    needed = N * (n + n * n) * itemsize * 2  # state and covariance, prior and posterior
+    try:
+        physical = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return
+    if needed > physical:
+        raise InvalidInputError(f"x holds {N} filters of {n} states: their states and covariances need about "
+                                f"{needed / 1e9:.3g} GB, more than this machine's {physical / 1e9:.3g} GB of memory")
+
+
 class KalmanFilter:
     """N independent linear Kalman filters that share one model (F, H, Q; R shared or per filter).
 
@@ -346,6 +361,7 @@ class KalmanFilter:
         if x_arr.ndim not in (1, 2):
             raise InvalidInputError(f"x must have shape (N, n) or (n,); got {x_arr.shape}")
         self._single = x_arr.ndim == 1
+        _check_memory(np.atleast_2d(x_arr).shape, self.dtype.itemsize)
         x_arr = np.atleast_2d(x_arr).copy()
         check_finite("x", x_arr)
         self._N, self._n = x_arr.shape

@@ -151,6 +151,8 @@ def intrinsics_from_focal(focal: float, image_size: tuple[int, int], n_frames: i
     [[700.0, 0.0, 320.0], [0.0, 700.0, 240.0], [0.0, 0.0, 1.0]]
     """
     f = check_positive("focal", focal, "pixels")
+    if not 1e-3 <= f <= 1e7:
+        raise InvalidInputError(f"focal must be between 0.001 and 1e+07 pixels; got {f:g}")
     width, height = (check_positive("image width", image_size[0], "pixels"),
                      check_positive("image height", image_size[1], "pixels"))
     return np.repeat(intrinsic_matrices(f, f, width / 2, height / 2, 0.0), n_frames, axis=0)

@@ -256,6 +256,9 @@ def read_tracks(path: str | os.PathLike[str]) -> Tracks:
     file = Path(path)
     if not file.exists():
         raise InvalidInputError(f"{where(file)}: no such file")
+    if file.is_dir():
+        raise InvalidInputError(f"{where(file)}: is a folder, not a file; give a tracks file (tracks.npz, tracks.csv or "
+                                "a frame,track_id,x,y CSV)")
     if file.suffix.lower() != ".npz":  # the CSV reader refuses a folder, a FIFO or a device unread
         return read_tracks_csv(file)
     tracks = read_tracks_npz(file)

@@ -20,7 +20,7 @@ from .._version import __version__
 from ..errors import InvalidInputError
 from ..io._csv import csv_text
 from ..io.atomic import check_output_directory, output_directory
-from ..io.frames import read_frames
+from ..io.frames import IMAGE_EXTENSIONS, read_frames
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import observations_csv
 from ..mapping import ImageReconstruction, MappingSettings, ViewStatus, reconstruct_images
@@ -48,8 +48,8 @@ def is_image_input(path: Path) -> bool:
     text = str(path)
     if any(c in text for c in "*?["):
         return True
-    if path.is_dir():
-        return not (path / "tracks.npz").is_file()
+    if path.is_dir():  # a folder of images, not a run folder with its tracks
+        return not (path / "tracks.npz").is_file() and any(p.suffix.lower() in IMAGE_EXTENSIONS for p in path.iterdir())
     return path.suffix.lower() in _VIDEO_SUFFIXES or (path.suffix.lower() not in _TRACK_SUFFIXES and path.suffix != "")
 
 

@@ -568,6 +568,16 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
     )
 
 
+def _shown(text: str) -> str:
+    """``text`` with the surrogates Python makes of undecodable file-name bytes turned back into UTF-8 where they
+    spell it (a name such as 'dé' under the C locale), else into ``\\xNN`` escapes."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def build_report(
     run_dir: str | Path, *, out_name: str = "report.html", progress: bool = False, shown_as: str | Path | None = None
 ) -> Path:
@@ -624,5 +634,6 @@ def build_report(
         raise InvalidInputError(f"out_name {out_name}: {target} exists and is not a file; choose another name")
     folder = run.path if shown_as is None else Path(shown_as)
     document = render_report(replace(run, path=folder), progress=progress)
-    atomic_write(target, lambda path: path.write_text(document, encoding="utf-8"))
+    # a name that is not UTF-8 (or one the C locale left as surrogates) is shown as its bytes, not a crash
+    atomic_write(target, lambda path: path.write_text(_shown(document), encoding="utf-8"))
     return folder / out_name

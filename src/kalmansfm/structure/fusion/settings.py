@@ -17,6 +17,8 @@ __all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_NOISE_MODEL", "DEFAULT_OUTLIER_PROBA
 FUSION_METHODS = ("recursive", "batch", "pairs")
 DEFAULT_OUTLIER_PROBABILITY = 0.999
 DEFAULT_CHUNK_POINTS = 65_536
+#: The largest image noise σ a fusion takes (pixels).
+MAX_PIXEL_STD = 1e6
 DEFAULT_NOISE_MODEL = "mixture"
 
 
@@ -55,7 +57,11 @@ class FusionSettings:
         if self.method not in FUSION_METHODS:
             raise InvalidInputError(f"method must be one of {', '.join(FUSION_METHODS)}; got {self.method!r}")
         if self.pixel_std is not None:
-            object.__setattr__(self, "pixel_std", check_positive("pixel_std", self.pixel_std, "pixels"))
+            sigma = check_positive("pixel_std", self.pixel_std, "pixels")
+            if not 1e-9 <= sigma <= MAX_PIXEL_STD:
+                raise InvalidInputError(f"pixel_std must be between 1e-09 and {MAX_PIXEL_STD:g} pixels (a noise larger "
+                                        f"than any image measures nothing); got {sigma:g}")
+            object.__setattr__(self, "pixel_std", sigma)
         try:
             p = float(self.outlier_probability)
         except (TypeError, ValueError):
