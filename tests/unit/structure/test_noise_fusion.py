@@ -5,7 +5,7 @@ import pytest
 from scipy import stats
 
 import kalmansfm.structure.fusion.recursive as recursive_method
-from reference.fusion_recursive import recursive_states_numpy
+from kalmansfm.structure.fusion.recursive_numpy import recursive_states_numpy
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus, factorize, triangulate_midpoint
@@ -83,6 +83,7 @@ def test_too_few_residuals_for_a_model_fall_back_to_one_gaussian_sigma():
 
 def test_the_weighted_kernel_matches_the_numpy_reference(monkeypatch):
     s = known_camera_scene(points=800, views=8, pixel_std=0.5, outlier_fraction=0.05, visibility=0.6, seed=5)
+    monkeypatch.setattr(recursive_method, "_STATES", recursive_method.recursive_states)  # the kernel, whatever the size
     compiled = fuse(s.observations, s.cameras, noise_model="student-t", track_scales=True, history=True)
     monkeypatch.setattr(recursive_method, "_STATES", recursive_states_numpy)
     reference = fuse(s.observations, s.cameras, noise_model="student-t", track_scales=True, history=True)

@@ -9,7 +9,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 import kalmansfm.structure.fusion.recursive as recursive_method
-from reference.fusion_recursive import recursive_states_numpy
+from kalmansfm.structure.fusion.recursive_numpy import recursive_states_numpy
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus
@@ -80,6 +80,7 @@ def test_pairs_is_the_reports_scheme_and_is_over_confident():
 
 def test_compiled_kernel_matches_the_numpy_reference(monkeypatch):
     s = known_camera_scene(points=1500, views=9, pixel_std=0.5, outlier_fraction=0.1, visibility=0.6, seed=5)
+    monkeypatch.setattr(recursive_method, "_STATES", recursive_method.recursive_states)  # the kernel, whatever the size
     compiled = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
     monkeypatch.setattr(recursive_method, "_STATES", recursive_states_numpy)
     reference = fuse(s.observations, s.cameras, pixel_std=0.5, history=True)
@@ -207,3 +208,15 @@ def test_settings_are_the_same_options_and_a_keyword_beside_them_is_refused():
         fuse(s.observations, s.cameras, method="batch", history=True, settings=FusionSettings())
     with pytest.raises(InvalidInputError, match="pixel_std must be a number .* or 'auto'"):
         fuse(s.observations, s.cameras, pixel_std="estimate")
+
+
+def test_small_fusions_take_the_numpy_pass_and_large_ones_the_kernel(monkeypatch):
+    """A first fusion of a few hundred points must not wait for a kernel to compile."""
+    calls = []
+    monkeypatch.setattr(recursive_method, "recursive_states",
+                        lambda job: calls.append("kernel") or pytest.fail("the kernel ran on a small chunk"))
+    s = known_camera_scene(points=300, views=6, pixel_std=0.5, seed=8)
+    assert fuse(s.observations, s.cameras, pixel_std=0.5).status_counts()["ok"] == 300 and calls == []
+    monkeypatch.setattr(recursive_method, "COMPILED_MIN_POINTS", 100)
+    with pytest.raises(pytest.fail.Exception):
+        fuse(s.observations, s.cameras, pixel_std=0.5)

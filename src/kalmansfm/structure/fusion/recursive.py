@@ -1,36 +1,20 @@
-"""The recursive method: a gated iterated Kalman update per view in inverse depth, by the compiled kernel.
+"""The recursive method: a gated iterated Kalman update per view in inverse depth.
 
-The NumPy reference of the same transitions lives with the tests (``tests/reference/fusion_recursive.py``),
-which compare the two.
+Large chunks run the compiled kernel (:mod:`._recursive_kernel`), small ones the NumPy pass of the same
+transitions (:mod:`.recursive_numpy`, also the reference the tests compare the kernel with).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..points import PointStatus
 from .chunks import Chunk, ChunkResult, finish
 from .inverse_depth import IEKF_ITERATIONS, IEKF_TOLERANCE, MAX_CONDITION, START_ITERATIONS
+from .recursive_numpy import recursive_states_numpy
+from .states import RecursiveStates
 
-__all__ = ["RecursiveStates", "recursive_states", "run_recursive"]
-
-
-@dataclass(frozen=True)
-class RecursiveStates:
-    """What a recursive pass leaves: unit-σ inverse-depth states and the bookkeeping."""
-
-    theta: np.ndarray  # (n, 3), NaN where not started
-    cov: np.ndarray  # (n, 3, 3)
-    anchor: np.ndarray  # (n,) -1 where not started
-    started: np.ndarray  # (n,) bool
-    stalled: np.ndarray  # (n,) bool: a pair without parallax was met
-    used: np.ndarray  # (V, n) bool
-    rejected: np.ndarray  # (V, n) bool
-    residuals: np.ndarray  # (V, n, 2) observed - projected at the final state, every observation; NaN elsewhere
-    in_front: np.ndarray  # (n,) bool: positive oriented depth in every used view (started points)
-    history: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+__all__ = ["COMPILED_MIN_POINTS", "RecursiveStates", "recursive_states", "run_recursive"]
 
 
 def recursive_states(job: Chunk) -> RecursiveStates:
@@ -67,8 +51,20 @@ def recursive_states(job: Chunk) -> RecursiveStates:
                    history)
 
 
-#: The pass run_recursive uses (the tests swap in the NumPy reference to compare).
-_STATES = recursive_states
+#: Below this many points a chunk runs the NumPy pass (:mod:`.recursive_numpy`): a first fusion of a few
+#: hundred points should not wait for the kernel to compile (seconds), and NumPy is fast enough there.
+COMPILED_MIN_POINTS = 2048
+
+
+def _states(job: Chunk) -> RecursiveStates:
+    """The NumPy pass for small chunks, the compiled kernel for the others."""
+    if job.observations.shape[1] < COMPILED_MIN_POINTS:
+        return recursive_states_numpy(job)
+    return recursive_states(job)
+
+
+#: The pass run_recursive uses (tests swap in either one to compare them).
+_STATES = _states
 
 
 def run_recursive(job: Chunk) -> ChunkResult:

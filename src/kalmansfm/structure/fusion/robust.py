@@ -20,7 +20,7 @@ The covariance of a point is then σ² (Σ π Jᵀ J)⁻¹: the Gaussian one giv
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats

@@ -1,13 +1,19 @@
-"""NumPy reference of the recursive fusion pass: the same transitions as the compiled kernel, all points of a
-view at once.  Tests swap it in for the kernel and compare (``tests/unit/structure/test_point_fusion.py``)."""
+"""The recursive fusion pass in NumPy: the same transitions as the compiled kernel, all points of a view at once.
+
+It runs small fusions (fewer points than :data:`~.recursive.COMPILED_MIN_POINTS`, where compiling the
+kernel would cost more than it saves) and is the reference the tests compare the kernel with
+(``tests/unit/structure/test_point_fusion.py``); the two agree to about 1e-9 relative.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from kalmansfm.structure.fusion.chunks import Chunk, concat_history
-from kalmansfm.structure.fusion.inverse_depth import iterated_update, pair_starts, residuals_and_cheirality
-from kalmansfm.structure.fusion.recursive import RecursiveStates
+from .chunks import Chunk, concat_history
+from .inverse_depth import iterated_update, pair_starts, residuals_and_cheirality
+from .states import RecursiveStates
+
+__all__ = ["recursive_states_numpy"]
 
 
 def recursive_states_numpy(job: Chunk) -> RecursiveStates:
