@@ -183,4 +183,6 @@ def test_chunks_on_a_local_dask_cluster_give_the_same_structure(scene_files):
     shutil.rmtree(folder / "run")
     assert main(fuse_args(folder, "--no-plot", "--workers", "1", "--chunk-points", "25")) == 0
     there = np.genfromtxt(folder / "run" / "structure.csv", delimiter=",", skip_header=1)[:, :-1]
-    np.testing.assert_allclose(there, here, rtol=1e-12)
+    # small chunks run the NumPy pass, vectorised over a chunk's points: the batched arithmetic of other
+    # chunk sizes moves the last digits (1e-9 relative at most, measured)
+    np.testing.assert_allclose(there, here, rtol=1e-8)
