@@ -14,7 +14,7 @@ import re
 import cv2
 import numpy as np
 import pytest
-from report_checks import decode_png_data_uri
+from report_checks import decode_image_data_uri
 
 from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
@@ -93,7 +93,7 @@ def test_the_start_frames_are_initialising_in_every_file(hotel_run):
     assert "■ square: initialising" in document
     # frame 0 of the player: squares, no gate ellipses (a gate of the start-up prior is 2.45 × 10 px across)
     frames = json.loads(re.search(r'id="player-frames">(.*?)</script>', document, re.S).group(1))
-    first = decode_png_data_uri(frames[0]["src"])
+    first = decode_image_data_uri(frames[0]["src"])
     scale = first.shape[1] / 512
     for x, y in tracks.positions[0, :20]:
         ring = [(x + 24.5 * np.cos(t), y + 24.5 * np.sin(t)) for t in np.linspace(0, 2 * np.pi, 90)]

@@ -157,3 +157,26 @@ def test_a_perspective_reconstruct_over_an_affine_one_records_the_intrinsics_and
     camera = json.loads(options["camera"])
     assert camera["model"] == "perspective" and camera["intrinsics"].endswith("K.csv")
     assert camera["settings"]["method"] == "batch"
+
+
+def test_a_long_sequence_keeps_its_frames_as_one_video_and_the_report_reads_it(tmp_path):
+    """Issue 29: a long clip's run folder holds its frames as one video, not a PNG per frame."""
+    from kalmansfm.io import load_run
+    from kalmansfm.io.frames import MAX_PNG_FRAMES
+
+    out = tmp_path / "long"
+    frames = MAX_PNG_FRAMES + 5
+    _run("demo", "--out", str(out), "--frames", str(frames))
+    summary = read_summary(out / "summary.json")
+    assert "frames.mp4" in summary.files and not any(name.startswith("frames/") for name in summary.files)
+    assert not (out / "frames").exists()
+    run = load_run(out)
+    images = run.read_frames()
+    assert len(images) == frames and images[0].shape == (240, 320)
+    # H.264 at quality 18: within a few grey levels (the scene carries 2 levels of pixel noise, which it smooths)
+    from kalmansfm.scenes import render_scene
+
+    again = render_scene(n_frames=frames)
+    assert np.abs(images[7].astype(int) - again.frames[7].astype(int)).mean() < 3.0
+    html = (out / "report.html").read_text()
+    assert f"of the {frames} frames, evenly spaced" in html or html.count('"frame":') == frames

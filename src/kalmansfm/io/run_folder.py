@@ -25,7 +25,7 @@ from ..structure.geometry.pinhole import CameraSet
 from ..tracking.tracks import Tracks
 from ._csv import read_rows, where
 from .cameras import read_cameras
-from .frames import quiet_decoders
+from .frames import FRAMES_VIDEO, quiet_decoders, read_frames
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
 from .paths import path_problem
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
@@ -73,9 +73,15 @@ class RunFolder:
     figures: dict[str, Path]
     data_files: tuple[str, ...]
     cameras: CameraSet | None = None
+    frames_video: Path | None = None
 
     def read_frames(self) -> list[np.ndarray]:
-        """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none."""
+        """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none.
+
+        A long sequence's frames come from the run's ``frames.mp4``, short ones from its PNG files.
+        """
+        if self.frames_video is not None:
+            return [np.asarray(frame) for frame in read_frames(self.frames_video, min_frames=1)]
         frames = []
         for path in self.frame_paths:
             try:
@@ -211,4 +217,5 @@ def load_run(run_dir: str | Path) -> RunFolder:
         figures={name: folder / name for name in RUN_FIGURES if name in listed},
         data_files=tuple(sorted(name for name in listed if "/" not in name and not name.endswith(".png"))),
         cameras=read_cameras(folder / "cameras.csv") if "cameras.csv" in listed else None,
+        frames_video=path_of(FRAMES_VIDEO),
     )

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from ..errors import InvalidInputError
 from ..io.atomic import atomic_write
-from ..io.frames import encode_png
+from ..io.frames import encode_jpeg, encode_png
 from ..io.records import to_json
 from ..io.run_folder import RunFolder, load_run
 from ..io.structure import PointTable
@@ -45,9 +45,9 @@ STRIP_FRAMES = 6
 #: Rows a long table shows before "show all".
 TABLE_ROWS = 20
 #: At most this many frames go into the animated player (evenly subsampled beyond) ...
-MAX_PLAYER_FRAMES = 120
+MAX_PLAYER_FRAMES = 300
 #: ... and fewer if their PNGs would take more than this many bytes.
-MAX_PLAYER_BYTES = 8_000_000
+MAX_PLAYER_BYTES = 6_000_000
 
 def _total_seconds(summary: RunSummary) -> float | None:
     if summary.total_s is not None and math.isfinite(summary.total_s):
@@ -164,7 +164,8 @@ def _section_sequence(run: RunFolder, frames: list[np.ndarray], progress: bool) 
 
     def draw(f: int) -> str:
         (image,) = render_tracked_frames(frames or None, tracks, [f])
-        return m.data_uri(encode_png(image))
+        # JPEG: a drawn frame is a sixth of its PNG, so the player covers a long clip within its budget
+        return m.data_uri(encode_jpeg(image), "image/jpeg")
 
     rendered = {f: draw(f) for f in strip_indices}
     # the player's size budget, from the size of the frames drawn so far

@@ -14,8 +14,9 @@ __all__ = ["Html", "cards", "esc", "figure", "frames_warning", "img", "is_number
 esc = html.escape
 
 
-def data_uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+def data_uri(image: bytes, media_type: str = "image/png") -> str:
+    """``image`` (PNG unless said otherwise) as a data URI for an ``<img src>``."""
+    return f"data:{media_type};base64," + base64.b64encode(image).decode("ascii")
 
 
 def img(png: bytes, alt: str, *, css_class: str = "", width: int | None = None) -> str:

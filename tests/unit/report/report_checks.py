@@ -64,6 +64,18 @@ def decode_png_data_uri(src: str) -> np.ndarray:
     return image
 
 
+def decode_image_data_uri(src: str) -> np.ndarray:
+    """The image of an embedded PNG (plots, strips) or JPEG (the player's frames) data URI."""
+    prefix = "data:image/jpeg;base64,"
+    if not src.startswith(prefix):
+        return decode_png_data_uri(src)
+    data = base64.b64decode(src[len(prefix):], validate=True)
+    assert data.startswith(b"\xff\xd8"), "embedded image does not carry the JPEG signature"
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert image is not None and image.size > 0, "embedded JPEG does not decode"
+    return image
+
+
 def assert_self_contained(document: str) -> ParsedReport:
     """Parse the report and check it needs nothing outside the file; return what was parsed."""
     parsed = parse_report(document)
@@ -74,7 +86,7 @@ def assert_self_contained(document: str) -> ParsedReport:
     assert not external, f"references to external resources: {external[:5]}"
     assert "url(" not in document.replace("url(#", ""), "CSS url() reference"
     for src in parsed.images:
-        decode_png_data_uri(src)
+        decode_image_data_uri(src)
     # every in-page link points at an element that exists
     for href in parsed.anchors:
         if href.startswith("#"):

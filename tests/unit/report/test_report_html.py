@@ -4,7 +4,7 @@ import re
 import numpy as np
 import pytest
 from fake_run import N_FRAMES, TRACK_IDS, drop_files, write_fake_run
-from report_checks import assert_self_contained, decode_png_data_uri
+from report_checks import assert_self_contained, decode_image_data_uri
 
 from kalmansfm import InvalidInputError
 from kalmansfm.io import RunSummary, load_run, summary_json
@@ -54,7 +54,7 @@ def test_player_carries_every_frame_and_frames_are_drawn_enlarged(full_report):
     payload = re.search(r'<script type="application/json" id="player-frames">(.*?)</script>', document, re.S)
     frames = json.loads(payload.group(1))
     assert [f["frame"] for f in frames] == list(range(N_FRAMES))
-    first = decode_png_data_uri(frames[0]["src"])
+    first = decode_image_data_uri(frames[0]["src"])
     # 64 x 48 frames are enlarged by an integer factor (560 px / 64 px -> 9) for display, with colour overlays
     assert first.shape == (48 * 9, 64 * 9, 3)
     assert (np.ptp(first.astype(int), axis=2) > 60).any(), "no coloured overlay drawn"
