@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
             _print_images(images)
             return 0
         result = run_reconstruct(ReconstructRequest(args.tracks, args.out, camera, smooth=args.smooth,
-                                                    plot=not args.no_plot))
+                                                    plot=not args.no_plot, progress=not args.quiet))
     s = result.summary.reconstruction
     assert s is not None  # a reconstruct run records its reconstruction
     if s.kind == "perspective":

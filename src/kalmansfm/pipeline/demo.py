@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from ..errors import NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
@@ -151,7 +152,8 @@ def run_demo(request: DemoRequest) -> DemoRun:
     else:
         with clock.step("factorization"):
             try:
-                reconstruction = factorize_tracks(tracks, weighted=camera.weighted, max_iterations=camera.max_iterations)
+                reconstruction = factorize_tracks(tracks, weighted=camera.weighted, max_iterations=camera.max_iterations,
+                                                  progress=request.progress)
             except NotEnoughDataError as exc:
                 structure_error = str(exc)
     truth = None
@@ -175,15 +177,20 @@ def run_demo(request: DemoRequest) -> DemoRun:
         scene=None if scene is None else scene.parameters,
     )
     with output_directory(request.out, inputs=inputs) as out:
-        with clock.step("writing"):
+        with clock.step("writing"), tqdm(total=4, desc="writing", unit="part", disable=not request.progress,
+                                         leave=False) as bar:
             names = stage_frames(out, frames, "frames/") if request.save_frames else []
+            bar.update()
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
+            bar.update()
             if reconstruction is not None:
                 names += stage_reconstruction(out, reconstruction, comment=f"kalmansfm demo of {source}",
                                               image_names=image_names,
                                               image_size=(frames[0].shape[1], frames[0].shape[0]))
+            bar.update()
             if scene is not None:
                 names += stage_ground_truth(out, scene)
+            bar.update()
         summary = stage_summary(out, summary, clock, names)
         report = report_s = None
         if request.html:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+from tqdm import tqdm
 
 from ..io.ground_truth import GroundTruth
 from ..io.summary import ReconstructionMetrics, Similarity, TrackingMetrics, TrackMetrics, TruthComparison
@@ -71,15 +72,22 @@ def tracking_metrics(tracks: Tracks) -> TrackingMetrics:
     )
 
 
-def factorize_tracks(tracks: Tracks, *, weighted: bool = True, max_iterations: int = DEFAULT_MAX_ITERATIONS) -> Reconstruction:
+def factorize_tracks(tracks: Tracks, *, weighted: bool = True, max_iterations: int = DEFAULT_MAX_ITERATIONS,
+                     progress: bool = False) -> Reconstruction:
     """Factorize the measured positions of ``tracks`` (a coasting prediction is no observation).
 
     With ``weighted`` (and covariances in the tracks) each observation has the least-squares
     weight 1 / σ², σ the tracker's posterior standard deviation.  The reconstruction carries
-    the tracks' frame numbers and ids.
+    the tracks' frame numbers and ids.  ``progress`` shows a bar over the fit's iterations on
+    stderr (the closed form of complete unweighted tracks has none).
     """
     weights = tracks.observation_weights() if weighted else None
-    rec = factorize(tracks.observations(), weights=weights, max_iterations=max_iterations)
+    with tqdm(total=max_iterations, desc="factorization", unit="it", disable=not progress, leave=False) as bar:
+        def advance(done: int, _: int) -> None:
+            bar.update(done - bar.n)
+
+        rec = factorize(tracks.observations(), weights=weights, max_iterations=max_iterations,
+                        progress=advance if progress else None)
     return rec.with_ids(tracks.frames, tracks.track_ids)
 
 

@@ -162,7 +162,7 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     if affine is not None:
         with clock.step("factorization"):
             factorized = factorize_tracks(tracks, weighted=affine.weighted and tracks.covariances is not None,
-                                          max_iterations=affine.max_iterations)
+                                          max_iterations=affine.max_iterations, progress=request.progress)
     choice = None
     if perspective is not None:
         with clock.step("perspective reconstruction"):

@@ -161,6 +161,7 @@ class ReconstructRequest:
     smooth : None smooths a tracker's ``tracks.npz`` that is not smoothed yet for the affine
         model and reads anything else as it is; True requires smoothing; False never smooths.
     plot : draw the figures.
+    progress : progress bars on stderr.
 
     Examples
     --------
@@ -173,6 +174,7 @@ class ReconstructRequest:
     camera: Camera = field(default_factory=Affine)
     smooth: bool | None = None
     plot: bool = True
+    progress: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tracks", Path(self.tracks))
