@@ -62,3 +62,25 @@ def test_images_need_a_perspective_camera_and_a_folder_of_one_image_is_refused(f
                  str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and not (tmp_path / "b").exists()
+
+
+def test_track_by_features_gives_measured_tracks_that_the_perspective_back_end_takes(folder, capsys):
+    base, views = folder
+    assert main(["track", str(base / "images"), "--matcher", "features", "--out", str(base / "tracks"), "-q"]) == 0
+    assert "tracked" in capsys.readouterr().out
+    from kalmansfm.io.tracks import read_tracks
+
+    tracks = read_tracks(base / "tracks" / "tracks.csv")
+    assert tracks.n_frames == 8 and tracks.n_tracks > 100 and tracks.states is None
+    # the views see the object from 140° apart at the ends: tracks span many frames, not only neighbours
+    assert (np.isfinite(tracks.positions[..., 0]).sum(axis=0) >= 4).sum() > 50
+    assert main(["reconstruct", str(base / "tracks"), "--camera", "perspective", "--intrinsics", str(base / "K.csv"),
+                 "--out", str(base / "from-tracks"), "-q"]) == 0
+    assert "registered: 8" in capsys.readouterr().out
+
+
+def test_track_by_features_refuses_start_points_and_smoothing(folder, tmp_path, capsys):
+    base, _ = folder
+    assert main(["track", str(base / "images"), "--matcher", "features", "--smooth", "--out", str(tmp_path / "t")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "give neither --points nor --smooth" in line

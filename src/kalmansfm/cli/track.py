@@ -6,6 +6,7 @@ import argparse
 import logging
 import sys
 
+from ..features import FeatureSettings
 from ..pipeline import TrackRequest, run_track
 from ..tracking import TrackerSettings
 from ..tracking.settings import MATCHERS
@@ -32,14 +33,18 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument("input", metavar="INPUT", help="folder of images (natural order), glob pattern or video file")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--points", metavar="FILE", help="CSV with header x,y[,track_id]: points in frame 0 (default: detect corners)")
-    p.add_argument("--max-features", type=int, default=DEFAULTS.max_features, metavar="N",
-                   help="corners to detect when --points is not given")
+    p.add_argument("--max-features", type=int, default=None, metavar="N",
+                   help=f"corners to detect when --points is not given (default: {DEFAULTS.max_features}; with "
+                   f"--matcher features the strongest {FeatureSettings().max_features} features of each frame)")
     gate = p.add_mutually_exclusive_group()
     gate.add_argument("--gate", type=float, default=DEFAULTS.gate_probability, metavar="P",
                       help="gate confidence level: c² is the chi-square 2-dof quantile of P")
     gate.add_argument("--gate-radius", type=float, default=None, metavar="C", help="gate radius c directly")
-    p.add_argument("--matcher", choices=MATCHERS, default=DEFAULTS.matcher,
-                   help="differential: Lucas-Kanade from the Kalman prediction; search: the report's gated template search")
+    p.add_argument("--matcher", choices=(*MATCHERS, "features"), default=DEFAULTS.matcher,
+                   help="differential: Lucas-Kanade from the Kalman prediction; search: the report's gated template "
+                   "search; features: no filter, SIFT features matched between neighbouring and similar frames "
+                   "anywhere in the clip (wide baselines, points that leave and come back), verified by the epipolar "
+                   "geometry (docs/front-end.md)")
     p.add_argument("--score", choices=["ssd", "ncc"], default=DEFAULTS.score, help="template score (--matcher search)")
     p.add_argument("--window", type=int, default=DEFAULTS.window, metavar="N", help="template side in pixels (odd)")
     p.add_argument("--max-misses", type=int, default=DEFAULTS.max_misses, metavar="N",
@@ -63,17 +68,21 @@ def settings_from_args(args: argparse.Namespace) -> TrackerSettings:
             gate_probability=args.gate,
             gate_radius=args.gate_radius,
             max_misses=args.max_misses,
-            max_features=args.max_features,
+            max_features=DEFAULTS.max_features if args.max_features is None else args.max_features,
             redetect=args.redetect,
         )
 
 
 def run(args: argparse.Namespace) -> int:
     smooth: bool | int = args.smooth_lag if args.smooth_lag is not None else bool(args.smooth)
+    features = None
+    if args.matcher == "features":
+        features = FeatureSettings() if args.max_features is None else FeatureSettings(max_features=args.max_features)
+        args.matcher = DEFAULTS.matcher  # the tracker's own settings are not used
     settings = settings_from_args(args)
-    with as_typed({"smooth": "--smooth-lag"}):
+    with as_typed({"smooth": "--smooth", "points": "--points", "max_features": "--max-features"}):
         result = run_track(TrackRequest(args.input, args.out, points=args.points, settings=settings, smooth=smooth,
-                                        progress=not args.quiet))
+                                        progress=not args.quiet, features=features))
     m = result.summary.tracking
     print(
         f"tracked {m.tracks} points through {m.frames} frames; {m.alive_in_last_frame} alive at the end, "

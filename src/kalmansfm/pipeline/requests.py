@@ -26,6 +26,7 @@ import numpy as np
 
 from .._validation import check_count, check_positive
 from ..errors import InvalidInputError
+from ..features import FeatureSettings
 from ..scenes import DEFAULT_SCENE_FRAMES, DEFAULT_SCENE_SEED
 from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
 from ..structure.fusion import FusionSettings
@@ -225,6 +226,10 @@ class TrackRequest:
     settings : the tracker's settings.
     smooth : False, True (fixed-interval RTS smoothing) or a lag in frames (fixed-lag).
     progress : a progress bar on stderr.
+    features : instead of the Kalman tracker, tracks by descriptor matching (:mod:`kalmansfm.features`):
+        features of every frame matched over a window of neighbouring frames and the most similar
+        frames anywhere in the clip (so a point that leaves and comes back keeps its track), verified
+        by the epipolar geometry, joined into tracks; for wide baselines or revisits.
     """
 
     input: Path
@@ -233,8 +238,12 @@ class TrackRequest:
     settings: TrackerSettings = field(default_factory=TrackerSettings)
     smooth: bool | int = False
     progress: bool = False
+    features: FeatureSettings | None = None
 
     def __post_init__(self) -> None:
+        if self.features is not None and (self.points is not None or self.smooth is not False):
+            raise InvalidInputError("tracks matched by features begin at the features found and have no filter: "
+                                    "give neither points nor smooth", fields=("points", "smooth"))
         object.__setattr__(self, "input", Path(self.input))
         object.__setattr__(self, "out", Path(self.out))
         object.__setattr__(self, "points", _path(self.points))

@@ -20,7 +20,7 @@ from ..io.fusion import history_csv, rejected_csv
 from ..io.reconstruction import RECONSTRUCTION_FILE, write_reconstruction
 from ..io.structure import motion_csv, structure_csv, structure_ply
 from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
-from ..io.tracks import write_tracks_csv, write_tracks_npz
+from ..io.tracks import observations_csv, write_tracks_csv, write_tracks_npz
 from ..report.drawing import tracks_gif, tracks_overview_png
 from ..report.figures import (
     camera_path_figure,
@@ -77,7 +77,10 @@ def stage_tracking(
     ``frames`` may be a lazily decoded source (it is read once, for the GIF); ``last_frame``
     is drawn under the paths in tracks.png.
     """
-    write_tracks_csv(tracks, out.file("tracks.csv"))
+    if tracks.states is None:  # tracks without a filter (matched by features): the observations alone
+        out.write_text("tracks.csv", observations_csv(tracks.positions, tracks.frames, tracks.track_ids))
+    else:
+        write_tracks_csv(tracks, out.file("tracks.csv"))
     write_tracks_npz(tracks, out.file("tracks.npz"))
     names = ["tracks.csv", "tracks.npz"]
     trace = covariance_trace_figure(tracks)

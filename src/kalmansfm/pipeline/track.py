@@ -5,16 +5,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from ..io.atomic import check_output_directory, output_directory
 from ..io.frames import read_frames
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import check_points_inside, read_points_csv
-from ..tracking import Tracks, smooth_tracks, track
+from ..features import FeatureSettings, build_tracks, detect_all, match_images
+from ..tracking import Tracks, TrackStatus, smooth_tracks, track
 from .evaluate import tracking_metrics
 from .requests import TrackRequest, request_options
 from .stage import Stopwatch, stage_summary, stage_tracking
 
-__all__ = ["TrackRun", "run_track"]
+__all__ = ["TrackRun", "feature_tracks", "run_track"]
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,10 @@ def run_track(request: TrackRequest) -> TrackRun:
         frames = list(sequence)  # decoded once: tracked, then drawn (tracks.png, tracks.gif)
         if request.points is not None:
             check_points_inside(start, frames[0].shape[1], frames[0].shape[0], str(request.points), lines)
-        tracks = track(frames, start, track_ids=track_ids, settings=request.settings, progress=request.progress)
+        if request.features is not None:
+            tracks = feature_tracks(frames, request.features)
+        else:
+            tracks = track(frames, start, track_ids=track_ids, settings=request.settings, progress=request.progress)
     if request.smooth is not False:
         with clock.step("smoothing"):
             tracks = smooth_tracks(tracks, lag=None if request.smooth is True else int(request.smooth))
@@ -70,3 +76,19 @@ def run_track(request: TrackRequest) -> TrackRun:
             names = stage_tracking(out, tracks, frames, last_frame=frames[-1])
         summary = stage_summary(out, summary, clock, names)
     return TrackRun(request.out, tracks, summary)
+
+
+def feature_tracks(frames: list[np.ndarray], settings: FeatureSettings) -> Tracks:
+    """Tracks by descriptor matching: features of every frame, matched over the chosen pairs (a window of
+    neighbours and the most similar frames anywhere), verified by a fundamental matrix, joined by union–find.
+
+    Every observation is ``measured``; there is no filter, so no state or covariance.
+    """
+    features = detect_all(frames, settings)
+    graph = match_images(features, None, settings)
+    found = build_tracks(features, graph)
+    positions = found.observations
+    status = np.where(np.isfinite(positions).all(axis=2), TrackStatus.MEASURED, TrackStatus.NONE).astype(np.int8)
+    height, width = frames[0].shape[:2]
+    return Tracks(positions=positions, status=status, track_ids=np.arange(positions.shape[1], dtype=np.int64),
+                  frames=np.arange(len(frames), dtype=np.int64), image_size=(width, height))
