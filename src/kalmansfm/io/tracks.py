@@ -170,7 +170,7 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
     (True, [[0, 0], [1, 0], [0, 0]])
     """
     path = Path(path)
-    present = np.isfinite(tracks.positions).any(axis=2) | (tracks.status != TrackStatus.NONE)
+    present = np.isfinite(tracks.positions).any(axis=2)  # status is kept whole: a lost track has no values
     for name in ("states", "covariances"):
         values = getattr(tracks, name)
         if values is not None:
@@ -180,10 +180,13 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
         "track_ids": tracks.track_ids.astype(np.int64),
         "frames": tracks.frames,
         "present": np.packbits(present, axis=None),
-        "entry_positions": tracks.positions[present],
     }
+    positions = tracks.positions[present]
     if tracks.states is not None:
         arrays["entry_states"] = tracks.states[present]
+    # the tracker's positions are its states' first two entries: kept once, unless they differ
+    if tracks.states is None or not np.array_equal(positions, arrays["entry_states"][:, :2], equal_nan=True):
+        arrays["entry_positions"] = positions
     if tracks.covariances is not None:
         covariances = tracks.covariances[present]
         if np.array_equal(covariances, np.swapaxes(covariances, 1, 2), equal_nan=True):
@@ -213,6 +216,8 @@ def _dense_arrays(file: Path, arrays: dict[str, np.ndarray]) -> dict[str, np.nda
     present = np.unpackbits(bits, count=F * P).astype(bool).reshape(F, P)
     n = int(present.sum())
     dense = dict(arrays)
+    if "entry_positions" not in arrays and "entry_states" in arrays:  # positions kept as the states' first two
+        arrays = {**arrays, "entry_positions": np.asarray(arrays["entry_states"])[:, :2]}
     for name, tail in (("positions", (2,)), ("states", (4,)), ("covariances", (4, 4)), ("scores", ())):
         key = f"entry_{name}"
         if name == "covariances" and "entry_covariances_upper" in arrays:

@@ -262,7 +262,7 @@ def tracks_overview_png(tracks: Tracks, last_frame: np.ndarray) -> bytes:
 
 
 def tracks_gif(
-    frames: Iterable[np.ndarray], tracks: Tracks, *, max_width: int = 320, max_frames: int = 60, fps: float = 10.0
+    frames: Iterable[np.ndarray], tracks: Tracks, *, max_width: int = 320, max_frames: int = 40, fps: float = 10.0
 ) -> bytes:
     """``tracks.gif``: the whole clip with the tracks drawn, at most ``max_frames`` evenly spaced frames shrunk to
     ``max_width`` — a size and a writing time that do not grow with the clip's length."""
