@@ -35,6 +35,8 @@ __all__ = [
 # Drawing works in 1/16 px so that sub-pixel positions are drawn where they are.
 _SHIFT = 4
 _ONE = 1 << _SHIFT
+# Past frames of each path drawn on a frame of the player and the GIF (the overview draws all).
+TRAIL_FRAMES = 100
 
 
 # Matplotlib's tab10 followed by tab20b, as hex: the colours of the tracks everywhere.
@@ -129,6 +131,7 @@ def render_tracked_frames(
     indices: Sequence[int],
     *,
     target_width: int = 560,
+    trail: int | None = TRAIL_FRAMES,
 ) -> list[np.ndarray]:
     """Draw tracks, current points and gate ellipses onto the frames ``indices``.
 
@@ -144,6 +147,9 @@ def render_tracked_frames(
     target_width : int
         Approximate display width in pixels; small frames are enlarged by an
         integer factor (nearest neighbour, pixels stay visible), big ones shrunk.
+    trail : int or None
+        How many past frames of each path to draw (None: the whole path). A bounded trail keeps
+        the drawing time of a frame constant along a long clip and the picture readable.
 
     Returns
     -------
@@ -169,7 +175,8 @@ def render_tracked_frames(
         interpolation = cv2.INTER_NEAREST if scale >= 1 else cv2.INTER_AREA
         canvas = cv2.resize(image, None, fx=scale, fy=scale, interpolation=interpolation)
         # pixel (x, y) has its centre at ((x + 0.5) * scale - 0.5) on the resized canvas
-        shown = ((positions[: f + 1] + 0.5) * scale - 0.5) * _ONE
+        first = 0 if trail is None else max(0, f - trail)
+        shown = ((positions[first: f + 1] + 0.5) * scale - 0.5) * _ONE
         marker = max(3.0, round(3 * scale**0.5)) * _ONE
         thickness = max(1, int(round(scale / 3)))
         status = tracks.status[f]
@@ -257,7 +264,7 @@ def _ellipse_polygons(centres: np.ndarray, semi_axes: np.ndarray, angle_deg: np.
 
 def tracks_overview_png(tracks: Tracks, last_frame: np.ndarray) -> bytes:
     """``tracks.png``: the last frame with every track's path, its current mark and gate."""
-    (image,) = render_tracked_frames([last_frame], tracks, [tracks.n_frames - 1], target_width=900)
+    (image,) = render_tracked_frames([last_frame], tracks, [tracks.n_frames - 1], target_width=900, trail=None)
     return encode_png(image)
 
 

@@ -74,3 +74,20 @@ def test_robust_half_width_holds_all_of_a_set_without_stray_points(count):
     points = np.random.default_rng(count).normal(size=(count, 3)) * 10
     centre, half = figures.robust_half_width(points)
     assert (np.abs(points - centre) <= half).all()
+
+
+def test_a_trail_draws_only_the_recent_path():
+    """A track that moved right along 40 frames: with a trail of 5 the start of its path is not drawn,
+    with the whole path (trail=None) it is; the current mark is the same in both."""
+    tracks = Tracks.empty(40, 1)
+    xs = 10.0 + 2.0 * np.arange(40)
+    tracks.states[:, 0, 0], tracks.states[:, 0, 1] = xs, 30.0
+    tracks.covariances[:] = np.eye(4)
+    tracks.status[:] = MEASURED
+    tracks = tracks.replace(positions=tracks.states[..., :2].copy())
+    blank = [np.full((60, 100), 90, np.uint8)] * 40
+    (short,) = render_tracked_frames(blank, tracks, [39], target_width=100, trail=5)
+    (whole,) = render_tracked_frames(blank, tracks, [39], target_width=100, trail=None)
+    start = (30, 12)  # (row, column) on the path near frame 1, far from the current mark at x=88
+    assert (whole[start] != 90).any() and (short[start] == 90).all()
+    np.testing.assert_array_equal(short[:, 80:], whole[:, 80:])  # the last 5 frames: x from 78
