@@ -1,0 +1,55 @@
+"""Write ``K.csv`` and ``cameras.csv`` from a Middlebury multi-view ring's ``*_par.txt``.
+
+The Middlebury rings (templeRing, dinoRing) publish, per image, ``name k11..k33 r11..r33 t1 t2 t3``
+with x_cam = R X + t. ``K.csv`` is what ``reconstruct --camera perspective`` needs to recover the
+cameras from the images alone; ``cameras.csv`` (the published cameras, intrinsics + pose layout) is
+the truth to compare with, or the input of ``kalmansfm fuse --cameras``. Frame k is the k-th image
+in natural order, as ``reconstruct`` numbers a folder of images.
+
+Usage::
+
+    python examples/middlebury_to_csv.py ../shared/data/middlebury_templering ring
+    kalmansfm reconstruct ../shared/data/middlebury_templering/images --camera perspective \\
+        --intrinsics ring/K.csv --out ring/run
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from kalmansfm.io.cameras import pose_cameras_csv
+from kalmansfm.io.intrinsics import intrinsics_csv
+
+
+def _natural_key(name: str) -> list[object]:
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folder", type=Path, help="the dataset folder, holding one *_par.txt and images/")
+    parser.add_argument("out", type=Path, help="folder to write K.csv and cameras.csv into")
+    args = parser.parse_args(argv)
+    found = sorted(args.folder.glob("*_par.txt"))
+    if len(found) != 1:
+        print(f"error: {args.folder}: expected one *_par.txt, found {len(found)}", file=sys.stderr)
+        return 2
+    rows = [line.split() for line in found[0].read_text().splitlines()[1:] if line.strip()]
+    rows.sort(key=lambda row: _natural_key(row[0]))
+    values = np.array([[float(v) for v in row[1:22]] for row in rows])
+    frames = np.arange(len(rows))
+    K, R, t = values[:, :9].reshape(-1, 3, 3), values[:, 9:18].reshape(-1, 3, 3), values[:, 18:21]
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "K.csv").write_text(intrinsics_csv(frames, K), encoding="utf-8")
+    (args.out / "cameras.csv").write_text(pose_cameras_csv(frames, K, R, t), encoding="utf-8")
+    print(f"{args.out / 'K.csv'}, {args.out / 'cameras.csv'}: {len(rows)} images")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
