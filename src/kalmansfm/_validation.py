@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from enum import IntEnum
 
 import numpy as np
@@ -92,3 +93,44 @@ class LabelledEnum(IntEnum):
         if label != label.lower():
             raise KeyError(label)
         return cls[label.upper()]
+
+
+def physical_memory() -> int | None:
+    """The machine's memory in bytes, where the system says (POSIX), else None."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def size_in_words(n_bytes: float) -> str:
+    """A memory size in words (binary units).
+
+    Examples
+    --------
+    >>> size_in_words(6.7 * 2**30), size_in_words(161e12)
+    ('6.7 GB', '146 TB')
+    """
+    for unit, size in (("TB", 2**40), ("GB", 2**30), ("MB", 2**20)):
+        if n_bytes >= size:
+            return f"{n_bytes / size:.2g} {unit}" if n_bytes < 10 * size else f"{n_bytes / size:.0f} {unit}"
+    return f"{n_bytes / 2**10:.0f} KB"
+
+
+def check_fits_in_memory(needed: float, what: str, advice: str) -> None:
+    """Refuse, before allocating, work that needs more than this machine's memory (no check where it is unknown).
+
+    ``what`` says what needs the memory, ``advice`` what to do instead; both go into one line.
+
+    Examples
+    --------
+    >>> check_fits_in_memory(1e6, "a small array", "use less")
+    >>> check_fits_in_memory(1e30, "x of 1e29 floats", "use fewer")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: x of 1e29 floats would need about ... of memory, more than this machine's ...; use fewer
+    """
+    available = physical_memory()
+    if available is not None and needed > available:
+        raise InvalidInputError(f"{what} would need about {size_in_words(needed)} of memory, more than this "
+                                f"machine's {size_in_words(available)}; {advice}")

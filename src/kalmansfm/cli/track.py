@@ -80,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
         features = FeatureSettings() if args.max_features is None else FeatureSettings(max_features=args.max_features)
         args.matcher = DEFAULTS.matcher  # the tracker's own settings are not used
     settings = settings_from_args(args)
-    with as_typed({"smooth": "--smooth", "points": "--points", "max_features": "--max-features"}):
+    smooth_flag = "--smooth-lag" if args.smooth_lag is not None else "--smooth"
+    with as_typed({"smooth": smooth_flag, "points": "--points", "max_features": "--max-features"}):
         result = run_track(TrackRequest(args.input, args.out, points=args.points, settings=settings, smooth=smooth,
                                         progress=not args.quiet, features=features))
     m = result.summary.tracking

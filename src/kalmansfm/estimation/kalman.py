@@ -19,14 +19,13 @@ in :mod:`._linalg`.
 
 from __future__ import annotations
 
-import os
 
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import InvalidInputError
-from .._validation import as_float_array, check_covariance, check_finite, check_shape
+from .._validation import as_float_array, check_covariance, check_finite, check_fits_in_memory, check_shape
 from . import _decoupled
 from ._linalg import LOG_2PI, cholesky_checked, gain_and_posterior, mat_vec, solve_lower, symmetrize, times_transposed
 from .engine import FilterEngine
@@ -264,14 +263,9 @@ def innovation_statistics(
 def _check_memory(shape: tuple[int, ...], itemsize: int) -> None:
     """Refuse N filters whose states and covariances cannot fit in this machine's memory, naming ``x``."""
     N, n = shape
-    needed = N * (n + n * n) * itemsize * 2  # state and covariance, prior and posterior
-    try:
-        physical = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (AttributeError, ValueError, OSError):
-        return
-    if needed > physical:
-        raise InvalidInputError(f"x holds {N} filters of {n} states: their states and covariances need about "
-                                f"{needed / 1e9:.3g} GB, more than this machine's {physical / 1e9:.3g} GB of memory")
+    check_fits_in_memory(N * (n + n * n) * itemsize * 2,  # state and covariance, prior and posterior
+                         f"x holds {N} filters of {n} states: their states and covariances",
+                         "use fewer filters per KalmanFilter or dtype=np.float32")
 
 
 class KalmanFilter:

@@ -38,9 +38,17 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import check_fits_in_memory
 from ..errors import InvalidInputError
 from ..tracking.settings import TrackerSettings
-from ..tracking.tracks import LOST, MEASUREMENT_CODES, NO_TRACK, POSITION_CODES, Tracks, TrackStatus
+from ..tracking.tracks import (
+    LOST,
+    MEASUREMENT_CODES,
+    NO_TRACK,
+    POSITION_CODES,
+    Tracks,
+    TrackStatus,
+)
 from ._csv import csv_text, number, read_rows, where
 from .npz import load_npz
 from .records import from_json, to_json
@@ -50,6 +58,7 @@ __all__ = [
     "MAX_INDEX",
     "TRACK_CSV_COLUMNS",
     "OBSERVATION_COLUMNS",
+    "check_dense_size",
     "check_points_inside",
     "observations_csv",
     "read_points_csv",
@@ -204,6 +213,27 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
     return path
 
 
+#: The estimators (factorization, fusion, bundle adjustment) hold about this many copies of the dense
+#: (frames, tracks) arrays a reader builds; a file whose copies cannot fit is refused before reading on.
+ESTIMATOR_COPIES = 3
+
+
+def check_dense_size(file: Path, n_frames: int, n_tracks: int, n_entries: int, bytes_per_entry: int) -> None:
+    """Refuse, with one line naming ``file``, tracks whose dense arrays and the estimators' copies exceed memory.
+
+    Tracks are held as (frames, tracks, ...) arrays from the readers to the estimators; a long
+    sequence of many short tracks fills a tiny share of them (issue 29: sparse storage is not
+    yet there), and running out of memory would end in the system killing the process.
+    """
+    share = n_entries / max(1, n_frames * n_tracks)
+    check_fits_in_memory(
+        float(n_frames) * n_tracks * bytes_per_entry * ESTIMATOR_COPIES,
+        f"{where(file)}: {n_frames} frames x {n_tracks} tracks, held as dense frames x tracks arrays "
+        f"({n_entries} entries fill {share:.2%} of them) with the estimators' copies",
+        "kalmansfm holds tracks densely: split the sequence into shorter segments of frames",
+    )
+
+
 def _dense_arrays(file: Path, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The dense (frames, tracks, ...) arrays of a file written with only its present entries."""
     status = arrays["status"]
@@ -213,6 +243,9 @@ def _dense_arrays(file: Path, arrays: dict[str, np.ndarray]) -> dict[str, np.nda
     bits = arrays["present"]
     if bits.dtype != np.uint8 or bits.ndim != 1 or bits.size != (F * P + 7) // 8:
         raise InvalidInputError(f"{where(file)}: present must hold the {F} x {P} entry bits; got {bits.dtype} {bits.shape}")
+    per_entry = 1 + 16 + sum(b for key, b in (("entry_states", 32), ("entry_covariances", 128),
+                                              ("entry_covariances_upper", 128), ("entry_scores", 8)) if key in arrays)
+    check_dense_size(file, F, P, len(arrays.get("entry_states", arrays.get("entry_positions", ()))), per_entry)
     present = np.unpackbits(bits, count=F * P).astype(bool).reshape(F, P)
     n = int(present.sum())
     dense = dict(arrays)
@@ -327,6 +360,7 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
             f"{where(file, at[0], at[1])}: frame {frame[key == dup][0]}, track_id {track[key == dup][0]} given twice"
         )
     shape = (len(frames), len(track_ids))
+    check_dense_size(file, *shape, len(rows), 1 + 16 + (32 if velocity is not None else 0) + (128 if std is not None else 0))
     status_table = np.zeros(shape, np.int8)
     status_table[fi, pi] = status
     positions = np.full(shape + (2,), np.nan)

@@ -21,7 +21,6 @@ is convex, so back-face culling is exact hidden-surface removal.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,7 +29,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.ground_truth import GroundTruth
-from .._validation import check_count
+from .._validation import check_count, check_fits_in_memory
 
 __all__ = [
     "DEFAULT_SCENE_FRAMES",
@@ -336,37 +335,10 @@ def _check_size(image_size: Any) -> tuple[int, int]:
 _RENDER_BYTES_PER_PIXEL = 21
 
 
-def _physical_memory() -> int | None:
-    """The machine's memory in bytes, where the system says (POSIX), else None."""
-    try:
-        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (AttributeError, ValueError, OSError):
-        return None
-
-
-def _size_in_words(n_bytes: float) -> str:
-    """A memory size in words (binary units).
-
-    Examples
-    --------
-    >>> _size_in_words(6.7 * 2**30), _size_in_words(161e12)
-    ('6.7 GB', '146 TB')
-    """
-    for unit, size in (("TB", 2**40), ("GB", 2**30), ("MB", 2**20)):
-        if n_bytes >= size:
-            return f"{n_bytes / size:.2g} {unit}" if n_bytes < 10 * size else f"{n_bytes / size:.0f} {unit}"
-    return f"{n_bytes / 2**10:.0f} KB"
-
-
 def _check_memory(n_frames: int, width: int, height: int) -> None:
     """Refuse a sequence whose rendering would need more memory than the machine has, before allocating any."""
-    needed = float(n_frames) * width * height * _RENDER_BYTES_PER_PIXEL
-    available = _physical_memory()
-    if available is not None and needed > available:
-        raise InvalidInputError(
-            f"n_frames {n_frames} of {width}x{height} would need about {_size_in_words(needed)} of memory to render "
-            f"(this machine has {_size_in_words(available)}); use fewer frames or smaller images"
-        )
+    check_fits_in_memory(float(n_frames) * width * height * _RENDER_BYTES_PER_PIXEL,
+                         f"n_frames {n_frames} of {width}x{height}", "use fewer frames or smaller images")
 
 
 def _check_occluder(occluder: Occluder | dict | None, n_frames: int, n_points: int) -> Occluder | None:

@@ -168,3 +168,28 @@ def test_motion_csv_numbers_read_back_as_the_same_floats_and_old_files_still_rea
     back = read_motion_csv(old)
     assert back.frames.tolist() == [0, 3]
     np.testing.assert_array_equal(back.translations, [[5.0, 6.0], [1.234567891, -2.0]])
+
+
+def test_tracks_too_large_for_dense_arrays_are_refused_naming_the_file(tmp_path, monkeypatch):
+    """A long sequence of short tracks whose dense (frames x tracks) arrays and the estimators' copies
+    exceed the machine's memory is refused before the dense arrays are made (CSV and npz alike):
+    one line naming the file, the counts and what to do, instead of the system killing the run."""
+    import kalmansfm._validation as validation
+    from kalmansfm.errors import InvalidInputError
+    from kalmansfm.io.tracks import read_tracks, write_tracks_npz
+
+    csv = tmp_path / "long.csv"
+    rows = "".join(f"{k},{k},{k + 1.0},2.0\n" for k in range(10))  # ten one-frame tracks on ten frames
+    csv.write_text("frame,track_id,x,y\n" + rows, encoding="utf-8")
+    fine = read_tracks(csv)  # 10 x 10 entries of 17 bytes, three copies: 5 100 bytes
+    npz = write_tracks_npz(fine, tmp_path / "long.npz")
+    monkeypatch.setattr(validation, "physical_memory", lambda: 5_000)
+    for path in (csv, npz):
+        with pytest.raises(InvalidInputError, match=rf"{path.name}: 10 frames x 10 tracks, held as dense .*"
+                                                    r"\(10 entries fill 10\.00% of them\).* about 5 KB of memory, "
+                                                    r"more than this machine's 5 KB; .*split the sequence"):
+            read_tracks(path)
+    monkeypatch.setattr(validation, "physical_memory", lambda: 5_200)
+    assert read_tracks(npz).positions.shape == (10, 10, 2)
+    monkeypatch.setattr(validation, "physical_memory", lambda: None)  # unknown: no check
+    assert read_tracks(csv).positions.shape == (10, 10, 2)
