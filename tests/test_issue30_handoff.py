@@ -12,7 +12,6 @@ import sys
 import numpy as np
 import pytest
 
-from kalmansfm.cli.main import main
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.io import RunSummary, summary_json
 

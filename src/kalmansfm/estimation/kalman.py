@@ -19,7 +19,6 @@ in :mod:`._linalg`.
 
 from __future__ import annotations
 
-
 from dataclasses import dataclass
 
 import numpy as np

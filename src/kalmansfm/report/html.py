@@ -46,7 +46,7 @@ STRIP_FRAMES = 6
 TABLE_ROWS = 20
 #: At most this many frames go into the animated player (evenly subsampled beyond) ...
 MAX_PLAYER_FRAMES = 300
-#: ... and fewer if their PNGs would take more than this many bytes.
+#: ... and fewer if their JPEGs would take more than this many bytes.
 MAX_PLAYER_BYTES = 5_000_000
 
 def _total_seconds(summary: RunSummary) -> float | None:

@@ -46,7 +46,7 @@ def assert_same_model(a: ColmapModel, b: ColmapModel) -> None:
 
 def test_the_builder_writes_what_the_reconstruction_says_in_colmap_pixels():
     model = SCENE.model()
-    K, R, t = SCENE.K, SCENE.R, SCENE.t
+    K, R = SCENE.K, SCENE.R
     assert model.images.ids.tolist() == list(range(1, 7)) and model.images.names == tuple(SCENE.names)
     assert len(model.cameras.ids) == 5 and set(model.cameras.models) == {"PINHOLE"}  # frames 0 and 3 share one
     np.testing.assert_array_equal(model.intrinsics(), K)  # back in our convention exactly (x.5 ± 0.5)
