@@ -16,18 +16,14 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from kalmansfm.io.cameras import pose_cameras_csv
+from kalmansfm.io.frames import natural_key
 from kalmansfm.io.intrinsics import intrinsics_csv
-
-
-def _natural_key(name: str) -> list[object]:
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {args.folder}: expected one *_par.txt, found {len(found)}", file=sys.stderr)
         return 2
     rows = [line.split() for line in found[0].read_text().splitlines()[1:] if line.strip()]
-    rows.sort(key=lambda row: _natural_key(row[0]))
+    rows.sort(key=lambda row: natural_key(row[0]))  # as reconstruct numbers a folder's images
     values = np.array([[float(v) for v in row[1:22]] for row in rows])
     frames = np.arange(len(rows))
     K, R, t = values[:, :9].reshape(-1, 3, 3), values[:, 9:18].reshape(-1, 3, 3), values[:, 18:21]

@@ -55,6 +55,7 @@ from ..structure.geometry.camera_checks import (
 from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices
 from ._csv import csv_text, number, read_rows, where
 from .colmap import MODEL_PARTS, locate_colmap_model, read_colmap_model, read_skew
+from .frames import natural_key
 from .tracks import _indices
 
 __all__ = [
@@ -271,10 +272,6 @@ def _check_matrices(P: np.ndarray, places: list[str], frames: np.ndarray) -> Non
 _FRAME_NAME = re.compile(r"frame_(\d+)\.\w+")
 
 
-def _natural_key(name: str) -> list[tuple[int, object]]:
-    return [(0, int(run)) if run.isdigit() else (1, run.lower()) for run in re.findall(r"\d+|\D+", name)]
-
-
 def match_image_names(names: Sequence[str], frame_names: Sequence[str] | Mapping[int, str] | None,
                       source: str) -> tuple[np.ndarray, str]:
     """The frame of each image name: by name when frame names are given, else by natural order.
@@ -305,7 +302,7 @@ def match_image_names(names: Sequence[str], frame_names: Sequence[str] | Mapping
         if names and all(numbered) and len({int(m.group(1)) for m in numbered}) == len(names):  # type: ignore[union-attr]
             # the names kalmansfm export gives frames whose source images it does not know
             return np.array([int(m.group(1)) for m in numbered], dtype=np.int64), "frame number"  # type: ignore[union-attr]
-        order = sorted(range(len(names)), key=lambda i: (_natural_key(names[i]), i))
+        order = sorted(range(len(names)), key=lambda i: (natural_key(names[i]), i))
         frames = np.empty(len(names), dtype=np.int64)
         frames[order] = np.arange(len(names))
         return frames, "order"
