@@ -180,3 +180,44 @@ def test_a_long_sequence_keeps_its_frames_as_one_video_and_the_report_reads_it(t
     assert np.abs(images[7].astype(int) - again.frames[7].astype(int)).mean() < 3.0
     html = (out / "report.html").read_text()
     assert f"of the {frames} frames, evenly spaced" in html or html.count('"frame":') == frames
+
+
+def _video(path: Path, frames: list[np.ndarray], codec: str) -> Path:
+    import cv2
+
+    height, width = frames[0].shape
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), 25, (width, height), isColor=False)
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+    return path
+
+
+def test_a_long_clip_from_a_compressed_video_keeps_a_copy_of_it_and_a_raw_one_is_encoded(tmp_path):
+    """Issue 29: a compressed input video is kept as it is (no time spent encoding, the frames bit for bit);
+    one that holds many bits per pixel (motion JPEG here) is encoded into frames.mp4 instead."""
+    from kalmansfm.io import load_run
+    from kalmansfm.io.frames import MAX_COPIED_BITS_PER_PIXEL, MAX_PNG_FRAMES, encode_video, read_frames
+    from kalmansfm.scenes import render_scene
+
+    scene = render_scene(n_frames=MAX_PNG_FRAMES + 5)
+    frames = [np.asarray(f) for f in scene.frames]
+    compressed = tmp_path / "clip.mp4"
+    compressed.write_bytes(encode_video(frames))
+    raw = _video(tmp_path / "clip.avi", frames, "MJPG")
+    pixels = sum(f.size for f in frames)
+    assert 8 * compressed.stat().st_size <= MAX_COPIED_BITS_PER_PIXEL * pixels < 8 * raw.stat().st_size
+
+    out = tmp_path / "copied"
+    _run("demo", "--input", str(compressed), "--out", str(out))
+    assert (out / "frames.mp4").read_bytes() == compressed.read_bytes()
+    decoded = list(read_frames(compressed))
+    kept = load_run(out).read_frames()
+    assert len(kept) == len(decoded) and all(np.array_equal(a, b) for a, b in zip(kept, decoded))
+
+    out = tmp_path / "encoded"
+    _run("demo", "--input", str(raw), "--out", str(out))
+    summary = read_summary(out / "summary.json")
+    assert "frames.mp4" in summary.files and not (out / "frames.avi").exists()
+    assert (out / "frames.mp4").stat().st_size < raw.stat().st_size
+    assert len(load_run(out).read_frames()) == len(frames)

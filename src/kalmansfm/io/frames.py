@@ -13,6 +13,7 @@ import glob as globbing
 import io
 import os
 import re
+import shutil
 import sys
 import threading
 from collections.abc import Iterator
@@ -40,9 +41,12 @@ __all__ = [
     "quiet_decoders",
     "read_frames",
     "FRAMES_VIDEO",
+    "MAX_COPIED_BITS_PER_PIXEL",
+    "VIDEO_SUFFIXES",
     "MAX_PNG_FRAMES",
     "encode_jpeg",
     "encode_video",
+    "is_frames_video",
     "stage_frames",
 ]
 
@@ -398,25 +402,58 @@ def encode_jpeg(image: np.ndarray, quality: int = 85) -> bytes:
 
 #: A sequence of at most this many frames is kept as PNG files (lossless); a longer one as one video.
 MAX_PNG_FRAMES = 120
-#: The video a long sequence's frames are kept in.
+#: The video a long sequence's frames are encoded into.
 FRAMES_VIDEO = "frames.mp4"
+#: A long clip read from one compressed video file is kept as a copy of that file, ``frames`` plus its suffix,
+#: when the file holds at most this many bits per pixel of each frame (compressed video holds a few hundredths;
+#: raw or motion-JPEG video several, which is re-encoded instead).
+MAX_COPIED_BITS_PER_PIXEL = 0.5
+#: The file suffixes of videos (a run's frames video is ``frames`` with one of them).
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".flv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
 
 
-def stage_frames(out: OutputDirectory, frames: list[np.ndarray], folder: str = "") -> list[str]:
+def is_frames_video(name: str) -> bool:
+    """Whether ``name`` (in a run folder) is the video that holds the run's frames.
+
+    Examples
+    --------
+    >>> is_frames_video("frames.mp4"), is_frames_video("frames.flv"), is_frames_video("frames/frame_001.png")
+    (True, True, False)
+    """
+    path = Path(name)
+    return path.stem == "frames" and path.parent == Path(".") and path.suffix.lower() in VIDEO_SUFFIXES
+
+
+def stage_frames(out: OutputDirectory, frames: list[np.ndarray], folder: str = "",
+                 source: Path | None = None) -> list[str]:
     """Stage ``frames`` for the run's report; returns the names written.
 
     Up to :data:`MAX_PNG_FRAMES` frames are ``folder/frame_NNN.png`` files, exactly as they were
-    tracked; a longer sequence goes into one H.264 video, :data:`FRAMES_VIDEO` (quality 18, about
-    one grey level of error, a twentieth of the PNGs' size), so that a long clip's run folder stays
-    the size of its results.
+    tracked.  A longer sequence is kept as one video: when ``source`` is the compressed video file
+    the frames are all the frames of, a copy of it (``frames`` with its suffix: the same frames
+    bit for bit, no time spent encoding); otherwise one H.264 video, :data:`FRAMES_VIDEO` (quality
+    18, about one grey level of error, a twentieth of the PNGs' size), so that a long clip's run
+    folder stays the size of its results.
     """
     if len(frames) > MAX_PNG_FRAMES:
+        if source is not None and _copyable(source, frames):
+            name = "frames" + source.suffix.lower()
+            shutil.copyfile(source, out.file(name))
+            return [name]
         out.write_bytes(FRAMES_VIDEO, encode_video(frames))
         return [FRAMES_VIDEO]
     names = [f"{folder}{frame_name(f, len(frames))}" for f in range(len(frames))]
     for name, frame in zip(names, frames):
         out.write_bytes(name, encode_png(np.asarray(frame)))
     return names
+
+
+def _copyable(source: Path, frames: list[np.ndarray]) -> bool:
+    """A compressed video file, small for its frames (:data:`MAX_COPIED_BITS_PER_PIXEL`)."""
+    if source.suffix.lower() not in VIDEO_SUFFIXES or not source.is_file():
+        return False
+    pixels = sum(int(np.asarray(f).shape[0]) * int(np.asarray(f).shape[1]) for f in frames)
+    return 8 * source.stat().st_size <= MAX_COPIED_BITS_PER_PIXEL * pixels
 
 
 def encode_video(frames: list[np.ndarray], fps: int = 25) -> bytes:

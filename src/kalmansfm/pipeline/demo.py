@@ -112,6 +112,7 @@ def run_demo(request: DemoRequest) -> DemoRun:
     clock = Stopwatch()
     scene = None
     image_names = None
+    video = None  # the video file the frames are all the frames of
     points, track_ids = request.points, request.track_ids
     with clock.step("frames"):
         if request.input is None:
@@ -126,6 +127,7 @@ def run_demo(request: DemoRequest) -> DemoRun:
             sequence = read_frames(request.input)
             made_from = demo_source(request, sequence)
             frames = list(sequence)  # FrameSource yields (H, W) uint8 grey frames
+            video = sequence.video
             source = str(request.input)
             if len(sequence.paths) == len(frames):  # a folder or glob of images: their names
                 image_names = [Path(p).name for p in sequence.paths]
@@ -179,7 +181,7 @@ def run_demo(request: DemoRequest) -> DemoRun:
     with output_directory(request.out, inputs=inputs) as out:
         with clock.step("writing"), tqdm(total=4, desc="writing", unit="part", disable=not request.progress,
                                          leave=False) as bar:
-            names = stage_frames(out, frames, "frames/") if request.save_frames else []
+            names = stage_frames(out, frames, "frames/", source=video) if request.save_frames else []
             bar.update()
             names += stage_tracking(out, tracks, frames, last_frame=frames[-1])
             bar.update()
@@ -198,7 +200,8 @@ def run_demo(request: DemoRequest) -> DemoRun:
             # folder gets its report together with its results or not at all. It shows the run's one
             # timing record; its own time is kept apart (DemoRun.report_s), not a step of the run.
             started = time.perf_counter()
-            report = build_report(out.staging, progress=request.progress, shown_as=out.path)
+            report = build_report(out.staging, progress=request.progress, shown_as=out.path,
+                                  frames=frames if request.save_frames else None)
             report_s = time.perf_counter() - started
     return DemoRun(request.out, tracks, reconstruction, summary, report, scene, report_s)
 

@@ -20,7 +20,7 @@ from .._version import __version__
 from ..errors import InvalidInputError
 from ..io._csv import csv_text
 from ..io.atomic import check_output_directory, output_directory
-from ..io.frames import IMAGE_EXTENSIONS, read_frames
+from ..io.frames import IMAGE_EXTENSIONS, VIDEO_SUFFIXES, read_frames
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import observations_csv
 from ..mapping import ImageReconstruction, MappingSettings, ViewStatus, reconstruct_images
@@ -33,7 +33,6 @@ __all__ = ["ImagesRequest", "ImagesRun", "is_image_input", "run_reconstruct_imag
 
 #: the file names of the front end's own tables in a run folder.
 PAIRS_FILE, VIEWS_FILE = "pairs.csv", "views.csv"
-_VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".flv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv"}
 _TRACK_SUFFIXES = {".csv", ".npz"}
 
 
@@ -50,7 +49,7 @@ def is_image_input(path: Path) -> bool:
         return True
     if path.is_dir():  # a folder of images, not a run folder with its tracks
         return not (path / "tracks.npz").is_file() and any(p.suffix.lower() in IMAGE_EXTENSIONS for p in path.iterdir())
-    return path.suffix.lower() in _VIDEO_SUFFIXES or (path.suffix.lower() not in _TRACK_SUFFIXES and path.suffix != "")
+    return path.suffix.lower() in VIDEO_SUFFIXES or (path.suffix.lower() not in _TRACK_SUFFIXES and path.suffix != "")
 
 
 @dataclass(frozen=True)

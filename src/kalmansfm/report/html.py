@@ -13,7 +13,7 @@ import datetime as _dt
 import json
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -515,22 +515,13 @@ def _section_files(run: RunFolder) -> str | None:
 # --- assembly -------------------------------------------------------------------------
 
 
-def render_report(run: RunFolder, *, progress: bool = False) -> str:
-    """The report of a loaded run folder as one HTML string.
-
-    Parameters
-    ----------
-    run : RunFolder
-        What :func:`kalmansfm.io.run_folder.load_run` read.
-    progress : bool
-        Show a progress bar (stderr) while frames are drawn.
-    """
-    frames = run.read_frames()
+def _sections(run: RunFolder, sequence: Callable[[], str | None]) -> list[tuple[str, str, str]]:
+    """(anchor, title, HTML) of each section the run has; ``sequence`` draws the frames' section."""
     # the factorization's camera rotations, computed once for the 3-D view and the motion section
     motion_rotations = (camera_rotation_matrices(run.motion.rows)
                         if run.motion is not None and len(run.motion.frames) else None)
     candidates = [
-        ("sequence", "Sequence with tracks and gates", lambda: _section_sequence(run, frames, progress)),
+        ("sequence", "Sequence with tracks and gates", sequence),
         ("uncertainty", "Uncertainty over time", lambda: _section_uncertainty(run)),
         ("tracks", "Tracking statistics", lambda: _section_tracks(run)),
         ("reconstruction", "Reconstruction", lambda: section_reconstruction(run)),
@@ -541,11 +532,23 @@ def render_report(run: RunFolder, *, progress: bool = False) -> str:
         ("parameters", "Parameters", lambda: _section_parameters(run)),
         ("files", "Files", lambda: _section_files(run)),
     ]
-    sections = []
-    for anchor, title, build in candidates:
-        body = build()
-        if body:
-            sections.append((anchor, title, body))
+    built = [(anchor, title, build()) for anchor, title, build in candidates]
+    return [(anchor, title, body) for anchor, title, body in built if body]
+
+
+def render_report(run: RunFolder, *, progress: bool = False, frames: Sequence[np.ndarray] | None = None) -> str:
+    """The report of a loaded run folder as one HTML string.
+
+    Parameters
+    ----------
+    run : RunFolder
+        What :func:`kalmansfm.io.run_folder.load_run` read.
+    progress : bool
+        Show a progress bar (stderr) while frames are drawn.
+    frames : the run's frames when the caller holds them (else they are read from the run folder).
+    """
+    shown = list(frames) if frames is not None else run.read_frames()
+    sections = _sections(run, lambda: _section_sequence(run, shown, progress))
     nav = "".join(f'<a href="#{anchor}">{m.esc(title)}</a>' for anchor, title, _ in sections)
     body_html = "".join(
         f'<section id="{anchor}"><div class="wrap"><h2>{m.esc(title)}</h2>{body}</div></section>'
@@ -580,7 +583,8 @@ def _shown(text: str) -> str:
 
 
 def build_report(
-    run_dir: str | Path, *, out_name: str = "report.html", progress: bool = False, shown_as: str | Path | None = None
+    run_dir: str | Path, *, out_name: str = "report.html", progress: bool = False, shown_as: str | Path | None = None,
+    frames: Sequence[np.ndarray] | None = None,
 ) -> Path:
     """Write the self-contained HTML report of a finished run folder.
 
@@ -597,6 +601,9 @@ def build_report(
     shown_as : path, optional
         The folder the run will be known by, when ``run_dir`` is the staging folder of a run
         being built (:class:`kalmansfm.io.OutputDirectory`); the report names it.
+    frames : sequence of images, optional
+        The run's frames, when the caller still holds them (a run just made): they are then not
+        decoded again from the run folder.
 
     Returns
     -------
@@ -634,7 +641,7 @@ def build_report(
     if target.exists() and not target.is_file():
         raise InvalidInputError(f"out_name {out_name}: {target} exists and is not a file; choose another name")
     folder = run.path if shown_as is None else Path(shown_as)
-    document = render_report(replace(run, path=folder), progress=progress)
+    document = render_report(replace(run, path=folder), progress=progress, frames=frames)
     # a name that is not UTF-8 (or one the C locale left as surrogates) is shown as its bytes, not a crash
     atomic_write(target, lambda path: path.write_text(_shown(document), encoding="utf-8"))
     return folder / out_name
