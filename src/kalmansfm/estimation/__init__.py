@@ -23,7 +23,13 @@ from .noise_model import (
     serial_covariance,
 )
 from .smoothing import FilterRun, SmoothedRun, smooth
-from .split_nees import PredictedNees, SplitCovariances, nees_weights, predict_nees, split_covariances
+from .split_nees import (
+    PredictedNees,
+    SplitCovariances,
+    nees_weights,
+    predict_nees,
+    split_covariances,
+)
 
 __all__ = [
     "NOISE_MODELS",

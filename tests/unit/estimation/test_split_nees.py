@@ -15,7 +15,11 @@ from scipy import stats
 
 from kalmansfm.errors import InvalidInputError
 from kalmansfm.estimation.noise_model import SerialCorrelation
-from kalmansfm.estimation.split_nees import nees_weights, predict_nees, split_covariances
+from kalmansfm.estimation.split_nees import (
+    nees_weights,
+    predict_nees,
+    split_covariances,
+)
 from kalmansfm.structure.fusion import fuse
 from kalmansfm.structure.geometry.pinhole import CameraSet, project_each, project_points
 
