@@ -23,6 +23,13 @@ from .noise_model import (
     serial_covariance,
 )
 from .smoothing import FilterRun, SmoothedRun, smooth
+from .split_nees import (
+    PredictedNees,
+    SplitCovariances,
+    nees_weights,
+    predict_nees,
+    split_covariances,
+)
 
 __all__ = [
     "NOISE_MODELS",
@@ -33,8 +40,10 @@ __all__ = [
     "KalmanFilter",
     "LinearGaussianModel",
     "NoiseFit",
+    "PredictedNees",
     "SerialCorrelation",
     "SmoothedRun",
+    "SplitCovariances",
     "UpdateResult",
     "constant_velocity_2d",
     "fit_noise_model",
@@ -45,6 +54,9 @@ __all__ = [
     "innovation_statistics",
     "kalman_predict",
     "kalman_update",
+    "nees_weights",
+    "predict_nees",
     "serial_covariance",
     "smooth",
+    "split_covariances",
 ]
