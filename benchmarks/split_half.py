@@ -149,7 +149,7 @@ def predicted_split(obs, cams, full, method: str, model: str, mode: str) -> dict
     ok = np.flatnonzero(fa.reconstructed & fb.reconstructed & full.reconstructed[keep])
     X = full.points[keep][ok]
     std = full.noise.observation_std
-    std = np.full(obs.shape[:2], full.noise.std) if std is None else std
+    std = np.full(obs.shape[:2], full.noise.std) if std is None else full.observations.grid(std)
     std = np.where(np.isfinite(std), std, full.noise.std)[:, keep][:, ok]
     designs = [whitened_design(cams, X, f.observations.used_mask()[:, ok], std) for f in (fa, fb)]
     cov = split_covariances(*designs, np.arange(obs.shape[0]), fitted_correlation(full))

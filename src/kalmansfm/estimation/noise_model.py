@@ -603,6 +603,18 @@ def _solve_moments(e0, e1, T0, T1) -> tuple[np.ndarray, np.ndarray]:
     return rho, np.sqrt(tau2)
 
 
+def _like_lengths(groups: np.ndarray, lengths: np.ndarray, most: int) -> list[np.ndarray]:
+    """Runs of ``groups`` (sorted by ascending ``lengths``) of at most ``most``, lengths within a factor 1.25 of the
+    run's first: the moment tables of a run cost the cube of its longest length."""
+    runs, start = [], 0
+    while start < groups.size:
+        stop = min(start + most, int(np.searchsorted(lengths, 1.25 * lengths[start], side="right")))
+        stop = max(stop, start + 1)
+        runs.append(groups[start:stop])
+        start = stop
+    return runs
+
+
 def fit_serial_correlation(residuals: object, design: object, positions: object, *,
                            block: int = 4096) -> SerialCorrelation:
     """Fit AR(1) errors along sequences to the residuals of many small least-squares fits, by moments.
@@ -666,12 +678,18 @@ def fit_serial_correlation(residuals: object, design: object, positions: object,
     if (lags < 0).any():
         raise InvalidInputError("positions must be finite")
     blocks = np.array_split(live, min(_JACKKNIFE_BLOCKS, live.size))
+    # a group's slots after its last observation are empty: groups of like length share trimmed tables
+    last = r.shape[1] - 1 - np.argmax(used[:, ::-1], axis=1)
+    n_lags = int(lags.max()) + 1
     parts = []
     for idx in blocks:
+        idx = idx[np.argsort(last[idx], kind="stable")]
         acc = None
-        for start in range(0, idx.size, block):
-            sub = idx[start:start + block]
-            t = _lag_tables(r[sub], J[sub], lags, used[sub])
+        for sub in _like_lengths(idx, last[idx] + 1, block):
+            w = int(last[sub].max()) + 1
+            e0, e1, T0, T1 = _lag_tables(r[sub, :w], J[sub, :w], lags[:w, :w], used[sub, :w])
+            pad = ((0, 0), (0, 0), (0, n_lags - T0.shape[2]))
+            t = (e0, e1, np.pad(T0, pad), np.pad(T1, pad))
             acc = t if acc is None else tuple(a + b for a, b in zip(acc, t))
         parts.append(acc)
     total = tuple(sum(p[i] for p in parts) for i in range(4))

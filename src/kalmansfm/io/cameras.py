@@ -53,10 +53,11 @@ from ..structure.geometry.camera_checks import (
     projection_scale_problem,
 )
 from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices
+from ..structure.reconstruction import Observations
 from ._csv import csv_text, number, read_rows, where
 from .colmap import MODEL_PARTS, locate_colmap_model, read_colmap_model, read_skew
 from .frames import natural_key
-from .tracks import _indices
+from .tracks import TrackObservations, _indices
 
 __all__ = [
     "MATRIX_COLUMNS",
@@ -66,6 +67,7 @@ __all__ = [
     "KnownCameras",
     "cameras_csv",
     "is_colmap_path",
+    "match_camera_observations",
     "match_cameras",
     "match_image_names",
     "pose_cameras_csv",
@@ -427,15 +429,29 @@ class CameraObservations:
     Attributes
     ----------
     cameras : CameraSet — the cameras of the frames that have observations, in frame order.
-    observations : (V, N, 2) — track positions in those frames, NaN where not observed.
+    observations : (V, N, 2) — track positions in those frames, NaN where not observed; or, from
+        :func:`match_camera_observations`, the same per observation (:class:`~kalmansfm.structure.Observations`).
     track_ids : (N,) — the track of each column.
     frames_without_camera : (k,) int — frames with observations but no camera (skipped).
     """
 
     cameras: CameraSet
-    observations: np.ndarray
+    observations: np.ndarray | Observations
     track_ids: np.ndarray
     frames_without_camera: np.ndarray
+
+
+def _camera_views(frames: np.ndarray, observed: np.ndarray, cameras: CameraSet, source: str
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of ``frames`` that have a camera, in frame order, their views, and the observed frames without one."""
+    view = cameras.view_of(frames)
+    missing = np.asarray(frames)[(view < 0) & observed]
+    keep = np.flatnonzero(view >= 0)
+    if keep.size < 2:
+        raise NotEnoughDataError(f"{source}: {keep.size} of its {len(frames)} frame(s) have a camera; "
+                                 f"fusing needs >= 2 (camera frames: {_frame_list(cameras.frames)})")
+    order = keep[np.argsort(np.asarray(frames)[keep], kind="stable")]
+    return order, view[order], missing
 
 
 def match_cameras(positions: np.ndarray, frames: np.ndarray, track_ids: np.ndarray,
@@ -462,15 +478,34 @@ def match_cameras(positions: np.ndarray, frames: np.ndarray, track_ids: np.ndarr
     >>> m.cameras.frames.tolist(), m.frames_without_camera.tolist()
     ([0, 2], [1])
     """
-    view = cameras.view_of(frames)
     observed = np.isfinite(positions).all(axis=2).any(axis=1)
-    missing = np.asarray(frames)[(view < 0) & observed]
-    keep = np.flatnonzero(view >= 0)
-    if keep.size < 2:
-        raise NotEnoughDataError(f"{source}: {keep.size} of its {len(frames)} frame(s) have a camera; "
-                                 f"fusing needs >= 2 (camera frames: {_frame_list(cameras.frames)})")
-    order = keep[np.argsort(np.asarray(frames)[keep], kind="stable")]
-    return CameraObservations(cameras.subset(view[order]), positions[order], np.asarray(track_ids), missing)
+    order, views, missing = _camera_views(frames, observed, cameras, source)
+    return CameraObservations(cameras.subset(views), positions[order], np.asarray(track_ids), missing)
+
+
+def match_camera_observations(tracks: TrackObservations, cameras: CameraSet, source: str = "the tracks"
+                              ) -> CameraObservations:
+    """:func:`match_cameras` for tracks held per observation: the observations stay per observation.
+
+    Examples
+    --------
+    >>> from kalmansfm.io.tracks import TrackObservations
+    >>> t = TrackObservations(np.array([0, 1, 2]), np.array([5]), np.array([0, 1, 2]), np.array([0, 0, 0]),
+    ...                       np.array([[1.0, 1], [2, 2], [3, 3]]))
+    >>> cams = CameraSet.from_matrices(np.stack([np.eye(3, 4)] * 2), frames=[0, 2])
+    >>> m = match_camera_observations(t, cams)
+    >>> m.observations.frame.tolist(), m.observations.xy[:, 0].tolist(), m.frames_without_camera.tolist()
+    ([0, 1], [1.0, 3.0], [1])
+    """
+    observed = np.zeros(tracks.frames.size, dtype=bool)
+    observed[tracks.frame] = True
+    order, views, missing = _camera_views(tracks.frames, observed, cameras, source)
+    row_view = np.full(tracks.frames.size, -1)
+    row_view[order] = np.arange(order.size)
+    keep = row_view[tracks.frame] >= 0
+    observations = Observations.from_sparse((order.size, tracks.track_ids.size), row_view[tracks.frame][keep],
+                                            tracks.track[keep], tracks.xy[keep])
+    return CameraObservations(cameras.subset(views), observations, np.asarray(tracks.track_ids), missing)
 
 
 def _frame_list(frames: np.ndarray, shown: int = 6) -> str:

@@ -94,7 +94,7 @@ def write_reconstruction(rec: Reconstruction, path: str | os.PathLike[str], *, i
             "details": _details_json(rec.details),
             "image_names": image_names, "image_size": None if image_size is None else [int(v) for v in image_size]}
     if rec.noise.observation_std is not None:  # each observation's own σ, stored per observation
-        arrays["obs_std"] = np.asarray(rec.noise.observation_std)[obs.frame, obs.point]
+        arrays["obs_std"] = np.asarray(rec.noise.observation_std)
     arrays["meta"] = np.frombuffer(json.dumps(meta, allow_nan=True).encode("utf-8"), dtype=np.uint8)
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **arrays)
@@ -118,10 +118,7 @@ def read_reconstruction(path: str | os.PathLike[str]) -> Reconstruction:
                                       tuple(v) if k == "initial_pair" else v) for k, v in meta["details"].items()})
         noise = meta["noise"]
         shape = tuple(int(v) for v in data["obs_shape"])
-        per_observation = None
-        if "obs_std" in data:
-            per_observation = np.full(shape, np.nan)
-            per_observation[data["obs_frame"], data["obs_point"]] = data["obs_std"]
+        per_observation = np.asarray(data["obs_std"], dtype=np.float64) if "obs_std" in data else None
         noise = NoiseEstimate(**{**noise, "parameters": tuple(tuple(p) for p in noise.get("parameters", ()))},
                               observation_std=per_observation)
         observations = Observations.from_sparse(shape, data["obs_frame"], data["obs_point"], data["obs_xy"],

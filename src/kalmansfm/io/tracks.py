@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,8 @@ __all__ = [
     "read_tracks",
     "read_tracks_csv",
     "read_tracks_npz",
+    "read_track_observations",
+    "TrackObservations",
     "tracks_to_csv",
     "write_tracks_csv",
     "write_tracks_npz",
@@ -311,12 +314,22 @@ def read_tracks(path: str | os.PathLike[str]) -> Tracks:
     return tracks.replace(track_ids=tracks.track_ids[order], **columns)
 
 
-def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
-    """Read a tracks CSV: the tracker's ``tracks.csv`` or any CSV with ``frame,track_id,x,y``.
+@dataclass(frozen=True)
+class _CsvRows:
+    """A tracks CSV's rows, checked: frame and track index of each row, its status, and the positioned rows' values."""
 
-    Without a ``std_x,std_y`` pair the tracks have no covariances; without ``vx,vy`` no states.
-    """
-    file = Path(path)
+    frames: np.ndarray
+    track_ids: np.ndarray
+    frame: np.ndarray  # (rows,) index into frames
+    track: np.ndarray  # (rows,) index into track_ids
+    status: np.ndarray  # (rows,)
+    positioned: np.ndarray  # (rows,) bool: not lost
+    xy: np.ndarray  # (positioned, 2)
+    velocity: np.ndarray | None
+    std: np.ndarray | None
+
+
+def _read_csv_rows(file: Path) -> _CsvRows:
     header, _, rows = read_rows(file, required=_REQUIRED)
     column = {name: i for i, name in enumerate(header)}
     lines = np.array([n for n, _ in rows])
@@ -362,8 +375,20 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
         raise InvalidInputError(
             f"{where(file, at[0], at[1])}: frame {frame[key == dup][0]}, track_id {track[key == dup][0]} given twice"
         )
+    return _CsvRows(frames, track_ids, fi, pi, status, positioned, xy, velocity, std)
+
+
+def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
+    """Read a tracks CSV: the tracker's ``tracks.csv`` or any CSV with ``frame,track_id,x,y``.
+
+    Without a ``std_x,std_y`` pair the tracks have no covariances; without ``vx,vy`` no states.
+    """
+    file = Path(path)
+    rows = _read_csv_rows(file)
+    frames, track_ids, fi, pi, status = rows.frames, rows.track_ids, rows.frame, rows.track, rows.status
+    positioned, xy, velocity, std = rows.positioned, rows.xy, rows.velocity, rows.std
     shape = (len(frames), len(track_ids))
-    check_dense_size(file, *shape, len(rows), 1 + 16 + (32 if velocity is not None else 0) + (128 if std is not None else 0))
+    check_dense_size(file, *shape, len(status), 1 + 16 + (32 if velocity is not None else 0) + (128 if std is not None else 0))
     status_table = np.zeros(shape, np.int8)
     status_table[fi, pi] = status
     positions = np.full(shape + (2,), np.nan)
@@ -379,6 +404,71 @@ def read_tracks_csv(path: str | os.PathLike[str]) -> Tracks:
         covariances[fp, pp, 1, 1] = std[:, 1] ** 2
     return Tracks(positions=positions, status=status_table, track_ids=track_ids, states=states,
                   covariances=covariances, frames=frames)
+
+
+
+
+@dataclass(frozen=True)
+class TrackObservations:
+    """The measured positions of tracks, one entry per observation: memory follows the observations.
+
+    A long sequence of short tracks fills a tiny share of a dense (frames × tracks) array;
+    :func:`read_track_observations` reads a tracks file into this form instead.
+
+    Attributes
+    ----------
+    frames : (F,) ascending frame numbers that hold a row of the file.
+    track_ids : (P,) ascending track ids.
+    frame, track : (M,) each observation's index into ``frames`` and ``track_ids``.
+    xy : (M, 2) its position (x = column, y = row), pixels.
+    image_size : (width, height) when the file says.
+    """
+
+    frames: np.ndarray
+    track_ids: np.ndarray
+    frame: np.ndarray
+    track: np.ndarray
+    xy: np.ndarray
+    image_size: tuple[int, int] | None = None
+
+    def dense(self) -> np.ndarray:
+        """(F, P, 2) positions, NaN where a track has no observation (:meth:`Tracks.observations`' layout)."""
+        out = np.full((self.frames.size, self.track_ids.size, 2), np.nan)
+        out[self.frame, self.track] = self.xy
+        return out
+
+
+def read_track_observations(path: str | os.PathLike[str]) -> TrackObservations:
+    """The measured positions of a tracks file (CSV or npz), one entry per observation, without dense arrays.
+
+    The same observations as ``read_tracks(path).observations()`` (measured and initialising
+    rows; coasting predictions and lost rows are none), checked the same way.  A CSV is read
+    row by row into this form; an npz holds dense status arrays and is read through
+    :func:`read_tracks`.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = f.write_text("frame,track_id,x,y\\n0,7,1.5,2.0\\n1,7,2.5,2.0\\n1,9,4.0,1.0\\n")
+    >>> obs = read_track_observations(f)
+    >>> obs.frames.tolist(), obs.track_ids.tolist(), obs.frame.tolist(), obs.track.tolist()
+    ([0, 1], [7, 9], [0, 1, 1], [0, 0, 1])
+    >>> np.array_equal(obs.dense(), read_tracks(f).observations(), equal_nan=True)
+    True
+    """
+    file = Path(path)
+    if file.suffix.lower() == ".npz" or not file.is_file():
+        tracks = read_tracks(file)
+        f, t = np.nonzero(tracks.measured)
+        return TrackObservations(tracks.frames, tracks.track_ids, f, t, tracks.positions[f, t], tracks.image_size)
+    rows = _read_csv_rows(file)
+    measured = np.isin(rows.status, MEASUREMENT_CODES)
+    xy = np.full((rows.status.size, 2), np.nan)
+    xy[rows.positioned] = rows.xy
+    order = np.lexsort((rows.track[measured], rows.frame[measured]))
+    return TrackObservations(rows.frames, rows.track_ids, rows.frame[measured][order], rows.track[measured][order],
+                             xy[measured][order])
 
 
 def _indices(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np.ndarray:

@@ -10,9 +10,9 @@ import numpy as np  # noqa: F401 (the examples use it)
 
 from .._version import __version__
 from ..io.atomic import check_output_directory, output_directory
-from ..io.cameras import CameraObservations, match_cameras, read_known_cameras
+from ..io.cameras import CameraObservations, match_camera_observations, read_known_cameras
 from ..io.summary import RunSummary, run_source
-from ..io.tracks import read_tracks
+from ..io.tracks import read_track_observations
 from ..structure import Reconstruction
 from ..structure.fusion import fuse
 from .cluster import ScatteringExecutor, check_cluster, dask_client
@@ -24,6 +24,12 @@ from .stage import Stopwatch, stage_reconstruction, stage_summary
 __all__ = ["FuseRun", "run_fuse"]
 
 log = logging.getLogger("kalmansfm")
+
+#: Tracks over at most this many views and (views × tracks) entries are fused as one dense array; more in blocks of
+#: tracks over their own views (:func:`~kalmansfm.structure.fusion.fuse` given observations per observation):
+#: the recursive method's per-view geometry grows with the square of the views, the dense arrays with both.
+DENSE_FUSION_VIEWS = 256
+DENSE_FUSION_ENTRIES = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -69,11 +75,10 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     with clock.step("reading"):
         known = read_known_cameras(request.cameras)
         cameras = known.cameras
-        tracks = read_tracks(request.tracks)
+        tracks = read_track_observations(request.tracks)
         # where the chunks are fused (scheduler, workers) does not change the result
         source = run_source(request.tracks, inputs, request_options(request))
-        data = match_cameras(tracks.observations(), tracks.frames, tracks.track_ids, cameras,
-                             source=str(request.tracks))
+        data = match_camera_observations(tracks, cameras, source=str(request.tracks))
     warnings = list(known.warnings)
     if known.matched_by == "order":
         warnings.append(f"the images of the COLMAP model {request.cameras.name} were matched to frames by the "
@@ -83,13 +88,17 @@ def run_fuse(request: FuseRequest) -> FuseRun:
         more = f", … ({data.frames_without_camera.size} in all)" if data.frames_without_camera.size > 8 else ""
         warnings.append(f"frames of {request.tracks.name} without a camera in {request.cameras.name} "
                         f"were skipped: {shown}{more}")
-    log.info("fusing %d tracks over %d views (%s)", data.observations.shape[1], len(data.cameras), settings.method)
+    views, points = data.observations.shape
+    log.info("fusing %d tracks over %d views (%s)", points, views, settings.method)
+    # a (views × tracks) array that is small is fused as one; a long sequence of short tracks in blocks of tracks
+    dense = views <= DENSE_FUSION_VIEWS and views * points <= DENSE_FUSION_ENTRIES
+    observations = data.observations.dense() if dense else data.observations
     with clock.step("fusion"):
         if request.scheduler is None and request.workers is None:
-            rec = fuse(data.observations, data.cameras, settings=settings)
+            rec = fuse(observations, data.cameras, settings=settings)
         else:
             with dask_client(request.scheduler, request.workers) as client:
-                rec = fuse(data.observations, data.cameras, settings=settings, executor=ScatteringExecutor(client))
+                rec = fuse(observations, data.cameras, settings=settings, executor=ScatteringExecutor(client))
     rec = rec.with_ids(track_ids=data.track_ids)
     metrics = reconstruction_metrics(rec, skipped_frames=tuple(int(f) for f in data.frames_without_camera))
     summary = RunSummary(command="fuse", input=f"{request.tracks} with cameras {request.cameras}", source=source,

@@ -260,6 +260,19 @@ class Observations:
         out[self.frame, self.point] = self.xy
         return out
 
+    def grid(self, values: np.ndarray) -> np.ndarray:
+        """(F, P) array of ``values`` given per observation (in this object's order), NaN where there is none.
+
+        Examples
+        --------
+        >>> obs = Observations.from_sparse((2, 2), [0, 1], [1, 0], [[1.0, 2.0], [3.0, 4.0]])
+        >>> obs.grid(np.array([0.5, 0.25])).tolist()
+        [[nan, 0.5], [0.25, nan]]
+        """
+        out = np.full(self.shape, np.nan)
+        out[self.frame, self.point] = values
+        return out
+
     def residual_matrix(self) -> np.ndarray:
         """(F, P) reprojection error lengths, NaN where there is no observation or no value."""
         if self._residual_values is not None:
@@ -283,9 +296,10 @@ class NoiseEstimate:
     model : the noise model (``"gaussian"``).
     unit : ``"px"`` or ``"unit weight"``.
     parameters : other fitted parameters of the model, as (name, value) pairs.
-    observation_std : (F, P) each observation's own standard deviation under the model
-        (pixels; NaN where there is no observation or it was left out), or None when every
-        observation has σ.
+    observation_std : (M,) each observation's own standard deviation under the model, one per
+        entry of the reconstruction's :class:`Observations` in their order (pixels; NaN where
+        it was left out; ``observations.grid(std)`` lays it out as frames × points), or None when
+        every observation has σ.
 
     Examples
     --------

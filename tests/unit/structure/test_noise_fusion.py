@@ -42,7 +42,7 @@ def test_the_mixture_model_rejects_what_it_fits_and_its_covariances_are_honest(s
     n = nees(f.points[ok] - scene.points[ok], f.point_covariances[ok])
     assert 1.9 < np.median(n) < 2.9 and np.mean(n <= stats.chi2.ppf(0.99, 3)) > 0.98
     # each observation's σ under the model, NaN where left out
-    std = f.noise.observation_std
+    std = f.observations.grid(f.noise.observation_std)
     assert np.all(np.isnan(std[rejected])) and np.allclose(std[observed & ~rejected & ok[None]], f.noise.std)
 
 

@@ -25,6 +25,8 @@ class Chunk:
     history: bool
     # (V, n) each observation's standard deviation relative to sigma (weighted passes), or None (all 1)
     scales: np.ndarray | None = None
+    # run the compiled kernel (the fusion as a whole is large), or None: decide by the chunk's size
+    compiled: bool | None = None
 
 
 @dataclass(frozen=True)

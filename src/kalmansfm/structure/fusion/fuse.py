@@ -64,31 +64,25 @@ covariances are scaled by the final σ².
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import numpy as np
 
 from ...errors import InvalidInputError, NotEnoughDataError
 from ...estimation.noise_model import SerialCorrelation
-from ..geometry.pinhole import CameraSet, project_points
+from ..geometry.pinhole import CameraSet
 from ..points import PointStatus
-from ..reconstruction import (
-    KNOWN_CAMERAS_GAUGE,
-    FrameStatus,
-    FusionDetails,
-    NoiseEstimate,
-    Observations,
-    Reconstruction,
-)
+from ..reconstruction import Observations, Reconstruction
+from .assemble import BlockResults, assemble
 from .batch import run_batch
+from .blocks import Block, chunks, dense_block, orientation_of_blocks, sparse_blocks
 from .chunks import Chunk, ChunkResult
-from .history import FusionHistory
-from .inputs import are_poses, scene_orientation_of, validate_inputs
-from .inverse_depth import ViewGeometry, theta_to_point, view_geometry
+from .inputs import are_poses, validate_inputs, validate_sparse_inputs
+from .inverse_depth import ViewGeometry
 from .pairs import run_pairs
-from .recursive import run_recursive
-from .robust import Reweighting, observation_residuals, reweigh, serial_correlation
+from .recursive import COMPILED_MIN_POINTS, run_recursive
+from .robust import ObservationResiduals, observation_residuals, reweigh, serial_correlation
 from .settings import FusionSettings
 
 __all__ = ["fuse"]
@@ -96,12 +90,6 @@ __all__ = ["fuse"]
 # Auto σ: stop re-estimating when it changes by less than this fraction; at most this many passes.
 _SIGMA_TOLERANCE = 5e-3
 _MAX_SIGMA_PASSES = 8
-# States converted from inverse depth to (X, Y, Z) together (bounds the temporaries).
-_CONVERSION_BLOCK = 16_384
-# A point whose distance from its first camera has a relative standard deviation above this is unreliable, above
-# _NO_DEPTH (three standard deviations reach infinity) degenerate.
-_UNRELIABLE_DEPTH = 0.1
-_NO_DEPTH = 1.0 / 3.0
 # Reweighted passes under a fitted noise model (iteratively reweighted least squares after the pilot).
 _REWEIGHTED_PASSES = 2
 # Residual degrees of freedom needed to fit a noise model beyond one Gaussian σ.
@@ -115,10 +103,6 @@ _RUNNERS: dict[str, Callable[[Chunk], ChunkResult]] = {"recursive": run_recursiv
 
 def _run_chunk(job: Chunk) -> ChunkResult:
     return _RUNNERS[job.method](job)
-
-
-def _chunks(n: int, size: int) -> list[slice]:
-    return [slice(s, min(s + size, n)) for s in range(0, n, size)] or [slice(0, 0)]
 
 
 def _sum_squares(results: Iterable[ChunkResult]) -> tuple[float, int, int]:
@@ -239,23 +223,56 @@ def fuse(
 
 def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSettings,
           executor: Any | None) -> Reconstruction:
-    cams, obs = validate_inputs(observations, cameras)
-    orientation = scene_orientation_of(cams, obs) if settings.orientation is None else settings.orientation
-    geometry = view_geometry(cams.matrices, orientation)
-    V, N, _ = obs.shape
-    slices = _chunks(N, settings.chunk_points)
+    if isinstance(observations, Observations):
+        cams = validate_sparse_inputs(observations, cameras)
+        blocks, dense = sparse_blocks(observations), False
+        n_points = observations.shape[1]
+    else:
+        cams, obs = validate_inputs(observations, cameras)
+        blocks, dense = [dense_block(obs)], True
+        n_points = obs.shape[1]
+    orientation = orientation_of_blocks(cams, blocks) if settings.orientation is None else settings.orientation
+    geometries: dict[int, ViewGeometry] = {}
 
-    def run(sigma: float, gate2: float, gate1: float, keep_history: bool, scales: np.ndarray | None = None,
-            points: np.ndarray | None = None) -> list[ChunkResult]:
-        data = obs if scales is None else np.where(np.isnan(scales)[..., None], np.nan, obs)
-        parts = slices
-        if points is not None:  # a subset of the points, in chunks of its own
-            data, scales = data[:, points], None if scales is None else scales[:, points]
-            parts = _chunks(points.size, settings.chunk_points)
-        jobs = [Chunk(settings.method, geometry, data[:, s], sigma, gate2, gate1, keep_history,
-                      None if scales is None else scales[:, s]) for s in parts]
+    def geometry(k: int) -> ViewGeometry:
+        # one block's geometry is kept; many blocks' would together grow with views × views per block
+        if len(blocks) == 1:
+            if k not in geometries:
+                geometries[k] = blocks[k].geometry(cams.matrices, orientation)
+            return geometries[k]
+        return blocks[k].geometry(cams.matrices, orientation)
+
+    slices = [chunks(b.points.size, settings.chunk_points) for b in blocks]
+    # many small blocks make a large fusion: the compiled kernel pays for its compilation there
+    compiled = None if len(blocks) == 1 else n_points >= COMPILED_MIN_POINTS
+
+    def run(sigma: float, gate2: float, gate1: float, keep_history: bool, scales: list[np.ndarray] | None = None,
+            subsets: list[np.ndarray] | None = None) -> list[list[ChunkResult]]:
+        owners: list[int] = []
+
+        def jobs() -> Iterator[Chunk]:  # made one at a time: a block's data lives while its chunks run
+            for k, block in enumerate(blocks):
+                data, sc = block.observations, None if scales is None else scales[k]
+                if sc is not None:
+                    data = np.where(np.isnan(sc)[..., None], np.nan, data)
+                parts = slices[k]
+                if subsets is not None:  # a subset of the points, in chunks of its own
+                    data, sc = data[:, subsets[k]], None if sc is None else sc[:, subsets[k]]
+                    parts = chunks(subsets[k].size, settings.chunk_points)
+                g = geometry(k)
+                for s in parts:
+                    owners.append(k)
+                    yield Chunk(settings.method, g, data[:, s], sigma, gate2, gate1, keep_history,
+                                None if sc is None else sc[:, s], compiled)
         mapper = map if executor is None else executor.map
-        return list(mapper(_run_chunk, jobs))
+        done = list(mapper(_run_chunk, jobs()))
+        grouped: list[list[ChunkResult]] = [[] for _ in blocks]
+        for k, result in zip(owners, done):
+            grouped[k].append(result)
+        return grouped
+
+    def every(grouped: list[list[ChunkResult]]) -> list[ChunkResult]:
+        return [r for results in grouped for r in results]
 
     passes = 1
     notes: list[str] = []
@@ -269,13 +286,13 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
         # with the degrees of freedom counted.
         results = run(1.0, np.inf, np.inf, False)
         sq = np.concatenate([np.where(r.used & (r.status == PointStatus.OK)[None], r.residuals, np.nan).ravel() ** 2
-                             for r in results])
+                             for r in every(results)])
         sq = sq[np.isfinite(sq)]
-        total, n_obs, n_pts = _sum_squares(results)
+        total, n_obs, n_pts = _sum_squares(every(results))
         dof = 2 * n_obs - 3 * n_pts
         if n_pts == 0:
             raise NotEnoughDataError(f"pixel_std='auto' needs fused points to estimate the noise from, and none was "
-                                     f"fused: {_why_nothing_fused(obs, results, cams, orientation)}")
+                                     f"fused: {_why_nothing_fused(blocks, every(results), cams, orientation)}")
         if dof <= 0 or sq.size == 0:
             raise NotEnoughDataError(
                 f"pixel_std='auto' needs more observations than unknowns (2 per observation - 3 per point > 0); "
@@ -291,7 +308,7 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
         for _ in range(gaussian_passes):
             results = run(sigma, settings.gate2, settings.gate1, settings.history)
             passes += 1
-            total, n_obs, n_pts = _sum_squares(results)
+            total, n_obs, n_pts = _sum_squares(every(results))
             dof = 2 * n_obs - 3 * n_pts
             if dof <= 0:
                 raise NotEnoughDataError(
@@ -300,34 +317,70 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
             if abs(sigma_out / sigma - 1.0) < _SIGMA_TOLERANCE:
                 break
             sigma, previous = _next_sigma(sigma, sigma_out, previous), (sigma, sigma_out)
-    reweighting, correlation = None, None
+    fit, correlation = None, None
+    scales: list[np.ndarray] | None = None
+    rejected: list[np.ndarray] | None = None
     if fitted and dof < _MIN_MODEL_DOF:
         notes.append(f"{dof} residual degrees of freedom are too few to fit the {settings.noise_model!r} noise "
                      f"model (at least {_MIN_MODEL_DOF}): one Gaussian σ and the χ² gate were used")
         fitted = False
     if fitted:
-        scales = None
-        reweighted_passes = _REWEIGHTED_PASSES
-        for i in range(reweighted_passes):
-            residuals = observation_residuals(geometry, results, slices, obs, scales)
-            reweighting = reweigh(residuals, (V, N), settings.noise_model, settings.outlier_probability,
-                                  settings.track_scales)
-            previous_scales, scales = scales, reweighting.scales
-            sigma_out = reweighting.fit.sigma
-            last = i == reweighted_passes - 1
+        for i in range(_REWEIGHTED_PASSES):
+            residuals, where = _residuals(blocks, geometry, results, slices, scales)
+            reweighting = reweigh(residuals, settings.noise_model, settings.outlier_probability, settings.track_scales)
+            previous_scales = scales
+            scales = _scattered(reweighting.scales, where, blocks, 1.0)
+            rejected = [r.astype(bool) for r in _scattered(reweighting.rejected, where, blocks, 0.0)]
+            fit, sigma_out = reweighting.fit, reweighting.fit.sigma
+            last = i == _REWEIGHTED_PASSES - 1
             if settings.history:
                 results = run(sigma_out, np.inf, np.inf, last, scales)
             else:
                 # a point whose observations and weights did not change keeps its estimate: refuse only the others
-                changed = _changed_points(results, obs, scales, previous_scales)
-                results, slices = _merged(results, slices, changed,
-                                          run(sigma_out, np.inf, np.inf, False, scales, changed))
+                changed = [_changed_points(results[k], blocks[k].observations, scales[k],
+                                           None if previous_scales is None else previous_scales[k])
+                           for k in range(len(blocks))]
+                update = run(sigma_out, np.inf, np.inf, False, scales, changed)
+                for k in range(len(blocks)):
+                    results[k], slices[k] = _merged(results[k], slices[k], changed[k], update[k])
             passes += 1
         # a diagnostic: errors correlated along the tracks are not what the covariances assume
-        correlation = serial_correlation(geometry, results, slices, obs, scales, sigma_out)
+        ok_points = sum(int(np.count_nonzero(r.status == PointStatus.OK)) for r in every(results))
+        correlation = serial_correlation(((geometry(k), results[k], slices[k], blocks[k].observations, scales[k],
+                                           blocks[k].views) for k in range(len(blocks))), sigma_out, ok_points)
         notes.extend(_correlation_warning(correlation))
-    return _assemble(settings, geometry, cams, obs, results, slices, sigma_out, settings.pixel_std is None, passes,
-                     reweighting, correlation, tuple(notes))
+    parts = [BlockResults(block, results[k], slices[k], None if scales is None else scales[k],
+                          None if rejected is None else rejected[k]) for k, block in enumerate(blocks)]
+    return assemble(settings, cams, n_points, parts, geometry, orientation, sigma_out, settings.pixel_std is None,
+                    passes, fit, correlation, tuple(notes), dense)
+
+
+def _residuals(blocks: list[Block], geometry: Callable[[int], ViewGeometry], results: list[list[ChunkResult]],
+               slices: list[list[slice]], scales: list[np.ndarray] | None
+               ) -> tuple[ObservationResiduals, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Every block's residuals with global (view, point) indices, and where each lives: (block, local view, point)."""
+    found = [observation_residuals(geometry(k), results[k], slices[k], block.observations,
+                                   None if scales is None else scales[k]) for k, block in enumerate(blocks)]
+    cat = np.concatenate
+    residuals = ObservationResiduals(cat([b.views[r.view] for b, r in zip(blocks, found)]),
+                                     cat([b.points[r.point] for b, r in zip(blocks, found)]),
+                                     cat([r.squared for r in found]), cat([r.dof for r in found]))
+    where = (cat([np.full(r.view.size, k) for k, r in enumerate(found)]), cat([r.view for r in found]),
+             cat([r.point for r in found]))
+    return residuals, where
+
+
+def _scattered(values: np.ndarray, where: tuple[np.ndarray, np.ndarray, np.ndarray], blocks: list[Block],
+               fill: float) -> list[np.ndarray]:
+    """Per-observation ``values`` laid out as each block's (views, points) array, ``fill`` where there is none."""
+    block, view, point = where
+    out = []
+    for k, b in enumerate(blocks):
+        grid = np.full((b.views.size, b.points.size), fill, dtype=np.float64)
+        mine = block == k
+        grid[view[mine], point[mine]] = values[mine]
+        out.append(grid)
+    return out
 
 
 def _changed_points(results: list[ChunkResult], obs: np.ndarray, scales: np.ndarray,
@@ -364,9 +417,9 @@ def _merged(results: list[ChunkResult], slices: list[slice], points: np.ndarray,
     return [ChunkResult(history=None, **merged)], [slice(0, n)]
 
 
-def _why_nothing_fused(obs: np.ndarray, results: list[ChunkResult], cams: CameraSet, orientation: int) -> str:
+def _why_nothing_fused(blocks: list[Block], results: list[ChunkResult], cams: CameraSet, orientation: int) -> str:
     """Why no point was fused, in plain words, from the statuses of an ungated pass."""
-    tracks = int(np.count_nonzero(np.isfinite(obs[..., 0]).sum(axis=0) >= 2))
+    tracks = sum(int(np.count_nonzero(np.isfinite(b.observations[..., 0]).sum(axis=0) >= 2)) for b in blocks)
     if tracks == 0:
         return "no track is seen in two views (every track was seen once), so there is nothing to triangulate"
     status = np.concatenate([r.status for r in results])
@@ -379,39 +432,6 @@ def _why_nothing_fused(obs: np.ndarray, results: list[ChunkResult], cams: Camera
     return (f"none of the {tracks} tracks seen in two or more views has parallax between its views (the camera "
             "centres coincide, as in a pure rotation, or the points are too far away for the baseline): their "
             "depth is not determined")
-
-
-def _judge_depth(g: ViewGeometry, points: np.ndarray, cov: np.ndarray, status: np.ndarray, used: np.ndarray
-                 ) -> tuple[np.ndarray, list[str]]:
-    """Points whose depth the views do not fix are not ``ok``.
-
-    σ_d / d, the standard deviation of a point's distance from the first camera that used it
-    relative to that distance (= σ_ρ / ρ of its inverse depth), says how much the views'
-    parallax fixes it.  Beyond :data:`_UNRELIABLE_DEPTH` the Gaussian covariance no longer
-    describes the (skewed, far-reaching) error and the point is ``unreliable``; beyond
-    :data:`_NO_DEPTH`, where three standard deviations reach infinity, it is ``degenerate``.
-    """
-    ok = np.flatnonzero(status == PointStatus.OK)
-    first = np.argmax(used[:, ok], axis=0)
-    ray = points[ok] - g.C[first]
-    distance = np.linalg.norm(ray, axis=1)
-    u = ray / np.where(distance > 0, distance, 1.0)[:, None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        relative = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", u, cov[ok], u))) / distance
-    relative = np.where(np.isfinite(relative), relative, np.inf)
-    status = status.copy()
-    none, weak = ok[relative > _NO_DEPTH], ok[(relative > _UNRELIABLE_DEPTH) & (relative <= _NO_DEPTH)]
-    status[none] = PointStatus.DEGENERATE
-    status[weak] = PointStatus.UNRELIABLE
-    degenerate = int(np.count_nonzero(status == PointStatus.DEGENERATE))
-    notes = []
-    if degenerate:
-        notes.append(f"{degenerate} of {status.size} points are 'degenerate': their views have (almost) no parallax, "
-                     "the depth is not determined (infinity is within three standard deviations)")
-    if weak.size:
-        notes.append(f"{weak.size} of {status.size} points are 'unreliable': their distance is uncertain by more than "
-                     f"{_UNRELIABLE_DEPTH:.0%} (little parallax); their covariance does not describe a skewed error")
-    return status, notes
 
 
 def _correlation_warning(c: SerialCorrelation) -> list[str]:
@@ -439,115 +459,3 @@ def _next_sigma(sigma: float, estimate: float, previous: tuple[float, float] | N
     return sigma + (estimate - sigma) / (1.0 - slope)
 
 
-def _to_points(g: ViewGeometry, anchors: np.ndarray | None, x: np.ndarray, cov: np.ndarray, sigma: float
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """(X, Y, Z) and covariance at pixel noise σ from a chunk's unit-σ states (inverse depth when anchored).
-
-    Converted in blocks, so the temporaries of the second-order term stay small.
-    """
-    if anchors is None:
-        return x, cov * sigma**2
-    X, C = np.empty_like(x), np.empty_like(cov)
-    for start in range(0, x.shape[0], _CONVERSION_BLOCK):
-        b = slice(start, start + _CONVERSION_BLOCK)
-        X[b], C[b] = theta_to_point(g, np.maximum(anchors[b], 0), x[b], cov[b] * sigma**2)
-    return X, C
-
-
-def _assemble_history(g: ViewGeometry, results: list[ChunkResult], slices: list[slice], sigma: float) -> FusionHistory:
-    """The chunks' histories in one :class:`FusionHistory`, sorted by view then point.
-
-    Every entry is written once, straight to its sorted place (no second copy of the history).
-    """
-    sizes = [r.history[0].size for r in results]
-    starts = np.cumsum([0, *sizes])
-    views = np.concatenate([r.history[0] for r in results]).astype(np.int64)
-    points = np.concatenate([r.history[1] + chunk.start for r, chunk in zip(results, slices)]).astype(np.int64)
-    order = np.lexsort((points, views))
-    place = np.empty_like(order)
-    place[order] = np.arange(order.size)
-    H = order.size
-    hx, hc = np.empty((H, 3)), np.empty((H, 3, 3))
-    states = results[0].anchors is not None
-    hs, hsc, ha = (np.empty((H, 3)), np.empty((H, 3, 3)), np.empty(H, np.int64)) if states else (None, None, None)
-    for r, begin, end in zip(results, starts[:-1], starts[1:]):
-        _, local, x, cov = r.history
-        where = place[begin:end]
-        anchors = None if r.anchors is None else r.anchors[local]
-        hx[where], hc[where] = _to_points(g, anchors, x, cov, sigma)
-        if states:
-            hs[where], hsc[where], ha[where] = x, cov * sigma**2, anchors
-    return FusionHistory(views[order], points[order], hx, hc, hs, hsc, ha)
-
-
-def _assemble(settings: FusionSettings, g: ViewGeometry, cams: CameraSet, obs: np.ndarray,
-              results: list[ChunkResult], slices: list[slice], sigma: float, estimated: bool,
-              passes: int, reweighting: Reweighting | None = None,
-              correlation: SerialCorrelation | None = None, warnings: tuple[str, ...] = ()) -> Reconstruction:
-    # the covariances' scale: σ, times √((ν + 4) / (ν + 2)) for a Student-t core (its weights' information)
-    sigma_cov = sigma if reweighting is None else sigma * np.sqrt(reweighting.fit.covariance_factor)
-    converted = [_to_points(g, r.anchors, r.points, r.covariances, sigma_cov) for r in results]
-    points = np.concatenate([x for x, _ in converted])
-    cov = np.concatenate([c for _, c in converted])
-    status = np.concatenate([r.status for r in results])
-    used = np.concatenate([r.used for r in results], axis=1)
-    rejected = np.concatenate([r.rejected for r in results], axis=1)
-    lengths = np.concatenate([r.residuals for r in results], axis=1)
-    status, depth_notes = _judge_depth(g, points, cov, status, used)
-    warnings = (*warnings, *depth_notes)
-    has_point = np.isin(status, (PointStatus.OK, PointStatus.UNRELIABLE))
-    points[~has_point], cov[~has_point] = np.nan, np.nan
-    used &= has_point[None]
-    behind = int(np.count_nonzero(status == PointStatus.BEHIND_CAMERA))
-    if behind and settings.orientation is None and are_poses(cams):
-        warnings = (*warnings, f"{behind} of {status.size} points lie behind the cameras that see them: the cameras "
-                    "are poses K [R | t] with det R = +1, which put the points in front at positive depth (a "
-                    "mirrored world frame needs orientation=-1)")
-    ok = status == PointStatus.OK
-    if reweighting is not None:
-        # the model's outliers were left out of the last pass: their residuals at the final points
-        rejected = reweighting.rejected & ok[None]
-        pix = project_points(g.P, np.where(ok[:, None], points, 0.0)).pixels
-        lengths = np.where(np.isfinite(obs).all(axis=2) & ok[None], np.linalg.norm(obs - pix, axis=2), np.nan)
-    views = used.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt(np.sum(np.where(used, lengths, 0.0) ** 2, axis=0) / views)
-    rms = np.where(ok, rms, np.nan)
-    dof = int(2 * used[:, ok].sum() - 3 * ok.sum())
-    if reweighting is None:
-        noise = NoiseEstimate(std=float(sigma), estimated=estimated, degrees_of_freedom=dof)
-    else:
-        fit = reweighting.fit
-        parameters = fit.parameters() + (() if correlation is None else correlation.parameters())
-        with np.errstate(divide="ignore"):
-            observation_std = np.where(np.isfinite(obs[..., 0]), fit.sigma * reweighting.scales, np.nan)
-        noise = NoiseEstimate(std=float(sigma), estimated=True, degrees_of_freedom=int(round(fit.degrees_of_freedom)),
-                              model=fit.model, parameters=parameters, observation_std=observation_std)
-    # the RMS over every observation of a fused point that was not rejected
-    kept = np.isfinite(obs).all(axis=2) & ~rejected & ok[None]
-    overall = float(np.sqrt(np.mean(lengths[kept] ** 2))) if kept.any() else float("nan")
-    hist = _assemble_history(g, results, slices, sigma_cov) if settings.history else None
-    pose = cams.decompose()
-    return Reconstruction(
-        kind="fusion",
-        method=settings.method,
-        camera_model="pinhole",
-        projections=np.array(cams.matrices),
-        rotations=pose.rotations,
-        frame_status=np.full(len(cams), FrameStatus.REGISTERED, dtype=np.int8),
-        points=points,
-        point_covariances=cov,
-        point_status=status,
-        views=views,
-        point_reprojection_rms=rms,
-        covariance_gauge=KNOWN_CAMERAS_GAUGE,
-        observations=Observations.from_dense(obs, used=used, residuals=lengths, rejected=rejected),
-        noise=noise,
-        reprojection_rms=overall,
-        details=FusionDetails(outlier_probability=settings.outlier_probability, orientation=g.orientation,
-                              passes=passes, history=hist),
-        intrinsics=pose.intrinsics,
-        translations=pose.translations,
-        frame_ids=cams.frames,
-        warnings=warnings,
-    )

@@ -7,11 +7,12 @@ import numpy as np
 from ...errors import InvalidInputError, NotEnoughDataError
 from ..._validation import as_float_array
 from ..geometry.pinhole import CameraSet, triangulate_points
+from ..reconstruction import Observations
 
-__all__ = ["are_poses", "scene_orientation_of", "validate_inputs"]
+__all__ = ["ORIENTATION_SAMPLE", "are_poses", "scene_orientation_of", "validate_inputs", "validate_sparse_inputs"]
 
 # Points used to decide the scene orientation (the sign of the depths most points agree on).
-_ORIENTATION_SAMPLE = 2_000
+ORIENTATION_SAMPLE = 2_000
 # |λ - 1| below this for every camera: the cameras are poses K [R | t] (from_pose, K, R, t files).
 _POSE_SCALE_TOLERANCE = 1e-6
 
@@ -32,6 +33,20 @@ def validate_inputs(observations: object, cameras: object) -> tuple[CameraSet, n
     return cams, obs
 
 
+def validate_sparse_inputs(observations: Observations, cameras: object) -> CameraSet:
+    """The cameras of observations given per observation (frame = view index), after checking they agree."""
+    cams = cameras if isinstance(cameras, CameraSet) else CameraSet.from_matrices(cameras)
+    V = len(cams)
+    if observations.shape[0] != V:
+        raise InvalidInputError(f"observations must be over the {V} views of the cameras; they are over "
+                                f"{observations.shape[0]} frames")
+    if not np.isfinite(observations.xy).all():
+        raise InvalidInputError("observations given per observation must be finite (leave out what is unseen)")
+    if V < 2:
+        raise NotEnoughDataError(f"fusing structure needs >= 2 cameras; got {V}")
+    return cams
+
+
 def are_poses(cams: CameraSet) -> bool:
     """Every camera is exactly K [R | t] with det R = +1 and K[2, 2] = 1 (scale λ = +1): a pose, not a bare P.
 
@@ -46,7 +61,7 @@ def scene_orientation_of(cams: CameraSet, obs: np.ndarray) -> int:
     if are_poses(cams):
         return 1
     counts = np.isfinite(obs[..., 0]).sum(axis=0)
-    sample = np.flatnonzero(counts >= 2)[:_ORIENTATION_SAMPLE]
+    sample = np.flatnonzero(counts >= 2)[:ORIENTATION_SAMPLE]
     if sample.size == 0:
         return 1
     return triangulate_points(cams, obs[:, sample]).orientation

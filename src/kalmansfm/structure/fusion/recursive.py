@@ -57,10 +57,9 @@ COMPILED_MIN_POINTS = 2048
 
 
 def _states(job: Chunk) -> RecursiveStates:
-    """The NumPy pass for small chunks, the compiled kernel for the others."""
-    if job.observations.shape[1] < COMPILED_MIN_POINTS:
-        return recursive_states_numpy(job)
-    return recursive_states(job)
+    """The NumPy pass for small fusions, the compiled kernel for the others (by the chunk's size if not said)."""
+    compiled = job.observations.shape[1] >= COMPILED_MIN_POINTS if job.compiled is None else job.compiled
+    return recursive_states(job) if compiled else recursive_states_numpy(job)
 
 
 #: The pass run_recursive uses (tests swap in either one to compare them).

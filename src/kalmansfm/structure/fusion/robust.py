@@ -20,6 +20,7 @@ The covariance of a point is then σ² (Σ π Jᵀ J)⁻¹: the Gaussian one giv
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +48,8 @@ _CORRELATION_SAMPLE = 2_000
 # multiplier that spreads the sampled tracks over the index range.
 _FIT_SAMPLE = 200_000
 _SAMPLE_HASH = 2_654_435_761
+# Numbers in the serial correlation's moment tables at a time.
+_MOMENT_ENTRIES = 20_000_000
 # A residual keeps at least this many degrees of freedom (a two-view point leaves 1 for 4 coordinates).
 _MIN_DOF = 0.05
 
@@ -104,14 +107,13 @@ def observation_residuals(g: ViewGeometry, results: list[ChunkResult], slices: l
 
 @dataclass(frozen=True)
 class Reweighting:
-    """What the fitted model says about every observation, for the next pass.
+    """What the fitted model says about every observation it was fitted to, for the next pass.
 
     Attributes
     ----------
     fit : the fitted :class:`~kalmansfm.estimation.noise_model.NoiseFit`.
-    scales : (V, N) each observation's standard deviation relative to σ (1 where the model
-        has no residual for it, e.g. a point not fused yet); NaN where left out.
-    rejected : (V, N) bool — observations left out as outliers.
+    scales : (M,) each observation's standard deviation relative to σ; NaN where left out.
+    rejected : (M,) bool — observations left out as outliers.
     """
 
     fit: NoiseFit
@@ -119,8 +121,8 @@ class Reweighting:
     rejected: np.ndarray
 
 
-def reweigh(residuals: ObservationResiduals, shape: tuple[int, int], model: str,
-            outlier_probability: float, track_scales: bool = True) -> Reweighting:
+def reweigh(residuals: ObservationResiduals, model: str, outlier_probability: float,
+            track_scales: bool = True) -> Reweighting:
     """Fit ``model`` to the residuals (tracks as groups with ``track_scales``) and turn it into weights and rejections."""
     _, track = np.unique(residuals.point, return_inverse=True)
     groups, names = ((track,), ("track",)) if track_scales else ((), ())
@@ -147,15 +149,12 @@ def reweigh(residuals: ObservationResiduals, shape: tuple[int, int], model: str,
             out = u > k * stats.f.ppf(outlier_probability, k, fit.tail)
         else:
             out = u > stats.chi2.ppf(outlier_probability, k)
-    scales = np.ones(shape)
-    rejected = np.zeros(shape, dtype=bool)
     with np.errstate(divide="ignore"):
         # the estimate weighs by E[w] (Student-t) within a track; the track's scale enters as E[1/λ], its
         # variance with the scale's own uncertainty, so that the covariance does not take it as known
         w = fit.precision / fit.group_precision
-        scales[residuals.view, residuals.point] = np.where(out, np.nan, np.sqrt(fit.group_variance / w))
-    rejected[residuals.view, residuals.point] = out
-    return Reweighting(fit, scales, rejected)
+        scales = np.where(out, np.nan, np.sqrt(fit.group_variance / w))
+    return Reweighting(fit, scales, np.asarray(out, dtype=bool))
 
 
 def _design(g: ViewGeometry, res: ChunkResult, observations: np.ndarray, scales: np.ndarray | None,
@@ -177,19 +176,38 @@ def _design(g: ViewGeometry, res: ChunkResult, observations: np.ndarray, scales:
     return r, J
 
 
-def serial_correlation(g: ViewGeometry, results: list[ChunkResult], slices: list[slice], observations: np.ndarray,
-                       scales: np.ndarray | None, sigma: float) -> SerialCorrelation:
-    """The AR(1) correlation of the errors along the views, from a sample of the fused points' residuals."""
-    ok_total = sum(int(np.count_nonzero(r.status == PointStatus.OK)) for r in results)
-    step = max(1, ok_total // _CORRELATION_SAMPLE)
-    rs, Js = [], []
-    for res, chunk in zip(results, slices):
-        idx = np.flatnonzero(res.status == PointStatus.OK)[::step]
-        r, J = _design(g, res, observations[:, chunk], None if scales is None else scales[:, chunk], idx, sigma)
-        rs.append(r)
-        Js.append(J)
-    V = observations.shape[0]
+def serial_correlation(parts: Iterable[tuple[ViewGeometry, list[ChunkResult], list[slice], np.ndarray,
+                                            np.ndarray | None, np.ndarray]], sigma: float, ok_points: int
+                       ) -> SerialCorrelation:
+    """The AR(1) correlation of the errors along the views, from a sample of the fused points' residuals.
+
+    ``parts``: per block of points its geometry, chunk results and slices, observations, scales and
+    the (global, ascending) indices of its views, which are the sequence positions; ``ok_points``: how
+    many points they fused (every ``ok_points // 2000``-th is sampled).  Each sampled
+    point's observations sit at its views' offsets from its first view (the lags are what count).
+    """
+    step = max(1, ok_points // _CORRELATION_SAMPLE)
+    rs, Js, offsets = [], [], []
+    for g, results, slices, observations, scales, views in parts:  # made one at a time: a block's geometry is big
+        for res, chunk in zip(results, slices):
+            idx = np.flatnonzero(res.status == PointStatus.OK)[::step]
+            r, J = _design(g, res, observations[:, chunk], None if scales is None else scales[:, chunk], idx, sigma)
+            seen = np.isfinite(r[..., 0])
+            first = views[np.argmax(seen, axis=1)]
+            rs.append(r)
+            Js.append(J)
+            offsets.append(np.where(seen, views[None, :] - first[:, None], -1))
+    span = max([int(o.max(initial=-1)) + 1 for o in offsets] + [1])
+    n = sum(r.shape[0] for r in rs)
+    r_all, J_all = np.full((n, span, 2), np.nan), np.full((n, span, 2, 3), np.nan)
+    row = 0
+    for r, J, offset in zip(rs, Js, offsets):
+        b, v = np.nonzero(offset >= 0)
+        r_all[row + b, offset[b, v]] = r[b, v]
+        J_all[row + b, offset[b, v]] = J[b, v]
+        row += r.shape[0]
     try:
-        return fit_serial_correlation(np.concatenate(rs), np.concatenate(Js), np.arange(V))
+        # the moment tables hold (2 × span)² numbers per track: fewer tracks at a time for long spans
+        return fit_serial_correlation(r_all, J_all, np.arange(span), block=max(16, _MOMENT_ENTRIES // (2 * span) ** 2))
     except NotEnoughDataError:
         return SerialCorrelation.independent()
