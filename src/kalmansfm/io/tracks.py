@@ -227,16 +227,18 @@ ESTIMATOR_COPIES = 3
 def check_dense_size(file: Path, n_frames: int, n_tracks: int, n_entries: int, bytes_per_entry: int) -> None:
     """Refuse, with one line naming ``file``, tracks whose dense arrays and the estimators' copies exceed memory.
 
-    Tracks are held as (frames, tracks, ...) arrays from the readers to the estimators; a long
-    sequence of many short tracks fills a tiny share of them (issue 29: sparse storage is not
-    yet there), and running out of memory would end in the system killing the process.
+    Tracks are held as (frames, tracks, ...) arrays from the readers to factorization and
+    calibrated reconstruction; a long sequence of many short tracks fills a tiny share of them
+    (fusion with known cameras reads a CSV per observation instead, :func:`read_track_observations`),
+    and running out of memory would end in the system killing the process.
     """
     share = n_entries / max(1, n_frames * n_tracks)
     check_fits_in_memory(
         float(n_frames) * n_tracks * bytes_per_entry * ESTIMATOR_COPIES,
         f"{where(file)}: {n_frames} frames x {n_tracks} tracks, held as dense frames x tracks arrays "
         f"({n_entries} entries fill {share:.2%} of them) with the estimators' copies",
-        "kalmansfm holds tracks densely: split the sequence into shorter segments of frames",
+        "factorization and calibrated reconstruction hold tracks densely: split the sequence into shorter segments "
+        "of frames (fuse, with known cameras, reads such a CSV per observation)",
     )
 
 

@@ -193,3 +193,19 @@ def test_tracks_too_large_for_dense_arrays_are_refused_naming_the_file(tmp_path,
     assert read_tracks(npz).positions.shape == (10, 10, 2)
     monkeypatch.setattr(validation, "physical_memory", lambda: None)  # unknown: no check
     assert read_tracks(csv).positions.shape == (10, 10, 2)
+
+
+def test_observations_are_read_per_observation_where_dense_arrays_would_not_fit(tmp_path, monkeypatch):
+    """Issue 29: the per-observation reader needs memory for the observations, not for frames x tracks."""
+    from kalmansfm import _validation as validation
+    from kalmansfm.io.tracks import read_track_observations
+
+    csv = tmp_path / "long.csv"
+    rows = "".join(f"{k},{k},{k + 1.0},2.0\n{k + 1},{k},{k + 2.0},2.5\n" for k in range(10))  # two-frame tracks
+    csv.write_text("frame,track_id,x,y\n" + rows, encoding="utf-8")
+    dense = read_tracks(csv).observations()
+    monkeypatch.setattr(validation, "physical_memory", lambda: 5_000)
+    with pytest.raises(InvalidInputError, match="split the sequence"):
+        read_tracks(csv)
+    sparse = read_track_observations(csv)
+    assert sparse.frame.size == 20 and np.array_equal(sparse.dense(), dense, equal_nan=True)

@@ -136,9 +136,13 @@ def fuse(
 
     Parameters
     ----------
-    observations : (V, N, 2) float
+    observations : (V, N, 2) float, or Observations
         Pixel positions (x = column, y = row) of N points in the V views of
-        ``cameras``, in the same view order; NaN where a point is not seen.
+        ``cameras``, in the same view order; NaN where a point is not seen.  Or the
+        same per observation (:class:`~kalmansfm.structure.Observations` of shape
+        (V, N), frame = view index): a long sequence of short tracks is then fused in
+        blocks of tracks, each over only the views it is seen in, so that memory follows
+        the observations; the result is the one the dense array gives.
     cameras : CameraSet or (V, 3, 4) projection matrices.
     method : {"recursive", "batch", "pairs"}, default "recursive"
         ``"recursive"``: the paper's Kalman fusion, view by view (inverse-depth
