@@ -146,6 +146,8 @@ CASES = [
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --outlier-prob 2", "--outlier-prob must be in (0, 1]"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --method ekf", "argument --method: invalid choice"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out {out} --workers 0", "workers must be an integer >= 1"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --workers 0", "--workers must be an integer >= 1; got 0"),
+    ("reconstruct", "{d}/tracks_ok.csv --out {out} --workers 2", "--workers and --scheduler spread the matching of image pairs"),
     ("fuse", "{d}/tracks_ok.csv --cameras {d}/cams_ok.csv --out " + NOT_WRITABLE, "a_file.txt/sub is not writable"),
     ("fuse", "{out}/tracks.csv --cameras {d}/cams_ok.csv --out {out}", "tracks.csv lies inside the output folder"),
     ("fuse", "{d}/tracks_ok.csv --cameras {out}/cameras.csv --out {out}", "cameras.csv lies inside the output folder"),

@@ -84,3 +84,22 @@ def test_track_by_features_refuses_start_points_and_smoothing(folder, tmp_path, 
     assert main(["track", str(base / "images"), "--matcher", "features", "--smooth", "--out", str(tmp_path / "t")]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "give neither --points nor --smooth" in line
+
+
+@pytest.mark.slow
+def test_images_matched_on_a_local_dask_cluster_give_the_same_cameras(folder):
+    """Issue 26: ``--workers`` spreads the pair matching over Dask processes; the result is the one made here."""
+    base, _ = folder
+    common = ["reconstruct", str(base / "images"), "--camera", "perspective", "--intrinsics", str(base / "K.csv"), "-q"]
+    assert main([*common, "--out", str(base / "here")]) == 0
+    assert main([*common, "--out", str(base / "dask"), "--workers", "2"]) == 0
+    assert (base / "dask" / "pairs.csv").read_text() == (base / "here" / "pairs.csv").read_text()
+    a, b = read_cameras(base / "here" / "cameras.csv"), read_cameras(base / "dask" / "cameras.csv")
+    np.testing.assert_allclose(a.matrices, b.matrices, rtol=1e-6, atol=1e-9)
+
+
+def test_workers_are_for_images_not_tracks(tmp_path, capsys):
+    tracks = tmp_path / "tracks.csv"
+    tracks.write_text("frame,track_id,x,y\n0,0,1,1\n1,0,2,2\n")
+    assert main(["reconstruct", str(tracks), "--out", str(tmp_path / "run"), "--workers", "2"]) == 2
+    assert "--workers and --scheduler spread the matching of image pairs" in capsys.readouterr().err

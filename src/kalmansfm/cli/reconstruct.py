@@ -13,6 +13,7 @@ from ..errors import InvalidInputError
 from ..mapping import MappingSettings
 from ..mapping.settings import FEATURE_OUTLIER_THRESHOLD_PX
 from ..pipeline import Affine, Auto, Perspective, ReconstructRequest, run_reconstruct
+from ..pipeline.cluster import check_cluster
 from ..pipeline.images import ImagesRequest, is_image_input, run_reconstruct_images
 from ..pipeline.perspective import CAMERA_MODELS
 from ..pipeline.requests import Camera
@@ -70,11 +71,17 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
         "that is not smoothed yet, read a CSV as it is",
     )
     p.add_argument("--max-iterations", type=int, default=DEFAULT_MAX_ITERATIONS, help="cap on the missing-data refinement iterations")
+    p.add_argument("--workers", type=int, default=None,
+                   help="images: match the image pairs on a local Dask cluster of this many processes (default: on "
+                   "threads in this process)")
+    p.add_argument("--scheduler", default=None,
+                   help="images: match the image pairs on an existing Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("--no-plot", action="store_true", help="do not draw structure.png")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    check_cluster(args.scheduler, args.workers, scheduler_name="--scheduler", workers_name="--workers")
     if args.camera == "affine" and (args.intrinsics is not None or args.focal is not None):
         raise InvalidInputError("--intrinsics and --focal describe a perspective camera: add --camera perspective "
                                 "(or auto)")
@@ -96,9 +103,13 @@ def run(args: argparse.Namespace) -> int:
                 raise InvalidInputError(f"{args.tracks} holds images: reconstruct them with --camera perspective and "
                                         "--intrinsics or --focal (or track them first)")
             images = run_reconstruct_images(ImagesRequest(args.tracks, args.out, camera, plot=not args.no_plot,
-                                                          settings=MappingSettings(reconstruction=settings)))
+                                                          settings=MappingSettings(reconstruction=settings),
+                                                          scheduler=args.scheduler, workers=args.workers))
             _print_images(images)
             return 0
+        if args.scheduler is not None or args.workers is not None:
+            raise InvalidInputError(f"--workers and --scheduler spread the matching of image pairs; {args.tracks} holds "
+                                    "tracks, which are reconstructed here")
         result = run_reconstruct(ReconstructRequest(args.tracks, args.out, camera, smooth=args.smooth,
                                                     plot=not args.no_plot, progress=not args.quiet))
     s = result.summary.reconstruction

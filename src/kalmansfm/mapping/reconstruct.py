@@ -28,6 +28,7 @@ import hashlib
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -197,8 +198,8 @@ def _view_status(features: Sequence[ImageFeatures], graph: MatchGraph, solution:
 # Matrix products here are many and small, and the threads of the pools below already use the cores:
 # BLAS threads inside them only contend (as in the back end, structure.perspective.bundle).
 @threadpool_limits.wrap(limits=1, user_api="blas")
-def reconstruct_images(images: object, intrinsics: object, settings: MappingSettings | None = None
-                       ) -> ImageReconstruction:
+def reconstruct_images(images: object, intrinsics: object, settings: MappingSettings | None = None,
+                       executor: Any | None = None) -> ImageReconstruction:
     """Cameras and points from a set of calibrated images, in any order.
 
     Parameters
@@ -206,6 +207,9 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
     images : sequence of F images, or an (F, H, W) / (F, H, W, C) array — uint8 grey, BGR or BGRA, one size.
     intrinsics : (3, 3) K for every image, or (F, 3, 3).
     settings : MappingSettings, default ``MappingSettings()``.
+    executor : object with a ``map(fn, items)`` method, optional
+        Matches the image pairs in chunks there (e.g. on Dask, :func:`~kalmansfm.features.match_images`);
+        by default on ``settings.features.thread_count`` threads here.  The result is the same.
 
     Returns
     -------
@@ -248,7 +252,7 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
     lap("detection")
     selection = select_pairs(features, fs)
     lap("pair_selection")
-    graph = match_images(features, K, fs, selection)
+    graph = match_images(features, K, fs, selection, executor=executor)
     lap("matching")
     if not graph.verified.any():
         raise NotEnoughDataError(_no_overlap_message(graph, F, fs.min_inliers))

@@ -24,6 +24,7 @@ from ..io.frames import IMAGE_EXTENSIONS, VIDEO_SUFFIXES, read_frames
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import observations_csv
 from ..mapping import ImageReconstruction, MappingSettings, ViewStatus, reconstruct_images
+from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .evaluate import reconstruction_metrics
 from .perspective import resolve_intrinsics
 from .requests import Perspective, request_options
@@ -63,6 +64,8 @@ class ImagesRequest:
     camera : the :class:`~kalmansfm.pipeline.requests.Perspective` camera (intrinsics or focal).
     settings : the front end's and the back end's settings.
     plot : draw reconstruction.png.
+    scheduler, workers : match the image pairs on Dask — an existing scheduler's address, or a local
+        cluster of this many processes (:func:`~kalmansfm.pipeline.cluster.dask_client`); neither: here.
     """
 
     images: Path
@@ -70,8 +73,11 @@ class ImagesRequest:
     camera: Perspective
     settings: MappingSettings = field(default_factory=MappingSettings)
     plot: bool = True
+    scheduler: str | None = None
+    workers: int | None = None
 
     def __post_init__(self) -> None:
+        check_cluster(self.scheduler, self.workers, scheduler_name="scheduler", workers_name="workers")
         object.__setattr__(self, "images", Path(self.images))
         object.__setattr__(self, "out", Path(self.out))
         if not isinstance(self.camera, Perspective):
@@ -109,7 +115,11 @@ def run_reconstruct_images(request: ImagesRequest) -> ImagesRun:
     made_from = run_source(sequence.description, [*sequence.paths, *[p for p in inputs[1:] if p is not None]],
                            request_options(request))
     with clock.step("reconstruction from the images"):
-        result = reconstruct_images(frames, K, request.settings)
+        if request.scheduler is None and request.workers is None:
+            result = reconstruct_images(frames, K, request.settings)
+        else:
+            with dask_client(request.scheduler, request.workers) as client:
+                result = reconstruct_images(frames, K, request.settings, executor=ScatteringExecutor(client))
     rec = result.reconstruction.with_ids(frame_numbers, np.arange(result.reconstruction.n_points))
     metrics = reconstruction_metrics(rec, intrinsics=source_k)
     lines = result.unregistered_lines()

@@ -116,3 +116,36 @@ def test_image_similarity_counts_the_matches_of_the_strongest_features(ring):
             a, b = feats[i].descriptors[:64], feats[j].descriptors[:64]
             expected = 0 if i == j else len(match_descriptors(a, b, 0.8))
             assert similarity[i, j] == expected
+
+
+class _PickledMap:
+    """An executor that sends every chunk through pickle, as Dask does, and counts them."""
+
+    def __init__(self) -> None:
+        self.chunks = 0
+
+    def map(self, fn, items):
+        import pickle
+
+        out = []
+        for item in items:
+            self.chunks += 1
+            out.append(pickle.loads(pickle.dumps(fn(pickle.loads(pickle.dumps(item))))))
+        return out
+
+
+def test_pair_matching_spread_over_an_executor_gives_the_same_graph(ring):
+    """Issue 26: the pairs matched in chunks elsewhere (each with its images' features only) — the same graph."""
+    from kalmansfm.features.graph import PAIR_CHUNK
+
+    views, feats = ring
+    K = np.broadcast_to(views.intrinsics, (len(feats), 3, 3))
+    here = match_images(feats, K)
+    executor = _PickledMap()
+    spread = match_images(feats, K, executor=executor)
+    assert executor.chunks == -(-len(here.candidates) // PAIR_CHUNK) > 1
+    assert np.array_equal(spread.candidates, here.candidates)
+    assert np.array_equal(spread.inlier_counts, here.inlier_counts) and np.array_equal(spread.putative_counts,
+                                                                                        here.putative_counts)
+    assert all(np.array_equal(a, b) for a, b in zip(spread.matches, here.matches))
+    assert here.verified.sum() > 16
