@@ -27,6 +27,7 @@ final tracks and over the reconstruction's inliers.
 from __future__ import annotations
 
 import argparse
+from contextlib import ExitStack
 import os
 import shutil
 import tempfile
@@ -112,10 +113,10 @@ def within_3px(data: Dataset, observations: np.ndarray, mask: np.ndarray | None 
     return float(np.sum(seen & (r < 3.0)) / max(seen.sum(), 1)), int(seen.sum())
 
 
-def run_ours(data: Dataset, settings: MappingSettings) -> dict:
+def run_ours(data: Dataset, settings: MappingSettings, executor=None) -> dict:
     start, cpu = time.perf_counter(), time.process_time()
     images = list(FrameSource(description=data.name, files=tuple(data.files), count=len(data.files)))
-    result = reconstruct_images(images, data.K, settings)
+    result = reconstruct_images(images, data.K, settings, executor=executor)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     rec = result.reconstruction
     out = camera_scores(data, result.registered, rec.rotations, rec.centres)
@@ -192,8 +193,21 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA, help="the folder holding the data sets")
     parser.add_argument("--repeat", type=int, default=2,
                         help="interleaved rounds (ours, pycolmap, ours, ...); the best time of each is reported")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="ours: match the image pairs on a local Dask cluster of this many processes (started once, "
+                        "before the timed runs; its CPU time is not in ours)")
     args = parser.parse_args()
     names = ["temple-quick", "dino-quick"] if args.quick else args.sets.split(",")
+    with ExitStack() as stack:
+        executor = None
+        if args.workers is not None:
+            from kalmansfm.pipeline.cluster import ScatteringExecutor, dask_client
+
+            executor = ScatteringExecutor(stack.enter_context(dask_client(n_workers=args.workers)))
+        compare(names, args, executor)
+
+
+def compare(names: list[str], args: argparse.Namespace, executor) -> None:
     settings = MappingSettings()
     print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}, {os.cpu_count()} cores")
     rows = []
@@ -201,7 +215,7 @@ def main() -> None:
         data = load(name, args.data)
         ours = colmap = None
         for _ in range(args.repeat):  # interleaved; the scores do not change between rounds, the times do
-            ours = best_of(ours, run_ours(data, settings), deterministic=True)
+            ours = best_of(ours, run_ours(data, settings, executor), deterministic=True)
             if not args.no_colmap:
                 colmap = best_of(colmap, run_pycolmap(data), deterministic=False)
         rows.append((name, len(data.files), ours, colmap, os.getloadavg()[0]))
