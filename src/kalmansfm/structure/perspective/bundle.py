@@ -301,7 +301,9 @@ def _reduced_camera_matrix(obs: ObservationList, blocks: _Blocks, U: np.ndarray,
     n = len(U)
     Y = blocks.W @ V_inv[obs.points]
     order, starts = obs.by_point
-    S = scipy.linalg.block_diag(*U) - schur_coupling_kernel(order, starts, obs.cameras, Y, blocks.W, n)
+    S = -schur_coupling_kernel(order, starts, obs.cameras, Y, blocks.W, n)
+    index = np.arange(n)
+    S.reshape(n, 6, n, 6)[index, :, index, :] += U  # the block diagonal U (a view into S)
     return S, Y
 
 

@@ -12,7 +12,14 @@ import cv2
 import numpy as np
 
 from ...errors import NotEnoughDataError
-from .bundle import ObservationList, bundle_adjust, free_network_covariances, reprojection_residuals
+from .bundle import (
+    ObservationList,
+    bundle_adjust,
+    camera_frame_projections,
+    free_network_covariances,
+    reprojection_residuals,
+    residuals_and_jacobians,
+)
 from .settings import (
     FrameStatus,
     PerspectiveSettings,
@@ -21,7 +28,7 @@ from .settings import (
 )
 from ..reconstruction import Reconstruction
 from ..geometry.pinhole import CameraSet, camera_centres, triangulate_points
-from ..fusion import fuse
+from ..fusion import FusionSettings, fuse
 from ..points import PointStatus
 
 __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
@@ -30,6 +37,9 @@ __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
 _RETRY_GROWTH = 1.2
 # A global bundle adjustment runs during growth when the registered frames have grown by this factor.
 _GLOBAL_BUNDLE_GROWTH = 1.25
+# Refinement stops once a round changes at most this share of the inlier decisions (after adjusting to them):
+# the rounds after that flip the same few borderline observations back and forth.
+_SETTLED_SHARE = 1e-3
 # Initial pair: the triangulation angle counts up to this many degrees in the pair's score.
 _ANGLE_CAP_DEG = 20.0
 # Initial pair: a pair is degenerate when a homography explains at least this share of the essential inliers.
@@ -324,20 +334,57 @@ class _Incremental:
         return float(np.sqrt(sq / dof)), float(np.sqrt(sq / max(len(obs), 1))), dof
 
     # -- 3. refinement -------------------------------------------------------------------------------
+    def _settled(self, gate_px: float) -> np.ndarray:
+        """(P,) tracks whose fusion would give back their point and inliers: nothing to re-estimate.
+
+        A reconstructed track qualifies when every registered observation of it is an inlier (none to
+        readmit), all lie in front of their cameras, and the fusion engine's outlier test passes at the
+        bundle-adjusted point — which is already the track's least-squares point for these cameras:
+        each observation's leave-one-out residual rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r within the χ²(2) gate (tracks
+        of ≥ 3 views), the whole cost within the χ²(1) gate (tracks of 2 views).  Computed on the
+        observation list, not on (views × tracks) arrays.
+        """
+        obs, frames, tracks = self._observations()
+        r, depth, _, J = residuals_and_jacobians(self.R[frames], self.C[frames], self.X[tracks], obs,
+                                                 camera_frame_projections(self.K[frames]))
+        m = len(tracks)
+        views = np.bincount(obs.points, minlength=m)
+        JtJ = (np.swapaxes(J, 1, 2) @ J).reshape(-1, 9)
+        normal = np.stack([np.bincount(obs.points, weights=JtJ[:, k], minlength=m) for k in range(9)], 1).reshape(m, 3, 3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal_inv = np.linalg.inv(normal + 1e-14 * np.trace(normal, axis1=1, axis2=2)[:, None, None] * np.eye(3))
+            A = np.eye(2) - J @ normal_inv[obs.points] @ np.swapaxes(J, 1, 2)
+            det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+            leave_one_out = (A[:, 1, 1] * r[:, 0] ** 2 - (A[:, 0, 1] + A[:, 1, 0]) * r[:, 0] * r[:, 1]
+                             + A[:, 0, 0] * r[:, 1] ** 2) / det
+        # the fusion's unit is σ = gate / √χ²₂(p): its χ²(2) gate is gate² in pixels², its χ²(1) gate scales alike
+        sigma2 = gate_px**2 / self.settings.chi2_bound
+        gate1 = FusionSettings(outlier_probability=self.settings.outlier_probability).gate1
+        bad = (depth <= 0) | ((views[obs.points] >= 3) & ~(leave_one_out <= gate_px**2))
+        bad_track = np.bincount(obs.points, weights=bad, minlength=m) > 0
+        cost = np.bincount(obs.points, weights=np.einsum("na,na->n", r, r), minlength=m)
+        bad_track |= (views == 2) & (cost > gate1 * sigma2)
+        settled = np.zeros(self.P, bool)
+        settled[tracks] = ~bad_track & (views >= 2) & (views == self.seen[frames][:, tracks].sum(axis=0))
+        return settled
+
     def refine(self, max_rounds: int = 8) -> None:
         frames = np.flatnonzero(self.registered)
         candidates = np.flatnonzero(self.seen[frames].sum(axis=0) >= 2)
-        self._triangulate(candidates, readmit=True)
+        self._triangulate(candidates[~self._settled(self.threshold)[candidates]], readmit=True)
         self._bundle("huber")
-        previous = None
         for _ in range(max_rounds):
             sigma, _, _ = self._sigma()
             gate = max(self.threshold, np.sqrt(self.settings.chi2_bound) * sigma)
-            self._triangulate(candidates, gate_px=gate, readmit=True)
+            before = self.inlier.copy()
+            # only the tracks the outlier test would change (or with observations to readmit) are fused again
+            self._triangulate(candidates[~self._settled(gate)[candidates]], gate_px=gate, readmit=True)
+            changed = int(np.count_nonzero(before != self.inlier))
+            if changed == 0:
+                break  # the bundle adjustment would start at its own minimum
             self._bundle("linear")
-            if previous is not None and np.array_equal(previous, self.inlier):
+            if changed <= _SETTLED_SHARE * np.count_nonzero(self.inlier & self.seen):
                 break
-            previous = self.inlier.copy()
 
     # -- 4. result ------------------------------------------------------------------------------------
     def result(self, method: str) -> Reconstruction:
