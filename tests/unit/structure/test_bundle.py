@@ -155,7 +155,7 @@ def test_free_network_covariances_equal_the_dense_pseudo_inverse(monkeypatch, de
 @pytest.mark.parametrize("dense", [True, False])
 def test_compiled_schur_coupling_equals_the_reference(monkeypatch, dense):
     """The numba kernel against the dense (and sparse) product, observations in a shuffled order."""
-    s, K, obs, _ = small_problem(frames=6, points=40, min_track_length=2)
+    _, _, obs, _ = small_problem(frames=6, points=40, min_track_length=2)
     rng = np.random.default_rng(5)
     shuffle = rng.permutation(len(obs))
     obs = ObservationList(obs.cameras[shuffle], obs.points[shuffle], obs.pixels[shuffle])
@@ -173,7 +173,7 @@ def test_compiled_schur_coupling_equals_the_reference(monkeypatch, dense):
 
 
 def test_bundle_adjustment_takes_the_same_path_with_the_reference_coupling(monkeypatch):
-    s, K, obs, start = small_problem(frames=5, points=30)
+    _, K, obs, start = small_problem(frames=5, points=30)
     compiled = bundle_adjust(*start, obs, K)
     m = len(start[2])
     monkeypatch.setattr(bundle_module, "schur_coupling_kernel",

@@ -45,7 +45,7 @@ from ...errors import InvalidInputError, KalmanSfmWarning
 from ..._validation import as_float_array, check_finite, check_positive
 from ..points import PointStatus
 from .camera_checks import ROTATION_ROUNDED, check_rotations, intrinsics_problem, projection_scale_problem
-from .batched import inverse3, jacobian_products, solve3
+from .batched import jacobian_products, solve3
 
 __all__ = [
     "CameraPose",

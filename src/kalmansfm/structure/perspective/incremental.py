@@ -27,6 +27,7 @@ from .settings import (
     perspective_reconstruction,
 )
 from ..reconstruction import Reconstruction
+from ..geometry.batched import inverse3
 from ..geometry.pinhole import CameraSet, camera_centres, triangulate_points
 from ..fusion import FusionSettings, fuse
 from ..points import PointStatus
@@ -54,7 +55,7 @@ class _PairCandidate:
     rotation: np.ndarray
     translation: np.ndarray
     essential_inliers: int
-    homography_inliers: int
+    homography_inliers: int | None  # None until fitted (only for the pairs that could be chosen)
     median_angle_deg: float
 
     @property
@@ -85,7 +86,8 @@ class RelativePose:
         inliers that triangulate.
     points : (k, 3) their linear triangulation in the first view's frame.
     angles_deg : (k,) their triangulation angles.
-    essential_inliers, homography_inliers : RANSAC inlier counts of the two models.
+    essential_inliers, homography_inliers : RANSAC inlier counts of the two models (the homography's
+        None when it was not fitted).
     """
 
     rotation: np.ndarray
@@ -94,15 +96,17 @@ class RelativePose:
     points: np.ndarray
     angles_deg: np.ndarray
     essential_inliers: int
-    homography_inliers: int
+    homography_inliers: int | None
 
 
-def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float) -> RelativePose | None:
+def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float, homography: bool = True
+                  ) -> RelativePose | None:
     """Essential matrix (RANSAC), homography (RANSAC) and pose by cheirality from normalised matches (k, 2).
 
     ``threshold`` is the RANSAC inlier distance in normalised units.  None when no
     essential matrix is found; otherwise the pose with however many inliers
     triangulate in front of both views (few when the views have no parallax).
+    ``homography=False`` skips the homography (the caller fits it later if needed).
     """
     a, b = np.ascontiguousarray(first), np.ascontiguousarray(second)
     if len(a) < 5:
@@ -112,8 +116,7 @@ def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float) -> Re
     E, mask_e = cv2.findEssentialMat(a, b, np.eye(3), method=cv2.USAC_ACCURATE, prob=0.999, threshold=threshold)
     if E is None or E.shape != (3, 3) or mask_e is None:
         return None
-    _, mask_h = cv2.findHomography(a, b, cv2.USAC_ACCURATE, threshold)
-    n_h = 0 if mask_h is None else int(mask_h.sum())
+    n_h = _homography_inliers(a, b, threshold) if homography else None
     _, R, t, mask_pose = cv2.recoverPose(E, a, b, np.eye(3), mask=mask_e.copy())
     keep = np.flatnonzero(mask_pose.ravel() > 0)
     cams = CameraSet.from_pose(np.eye(3), np.stack([np.eye(3), R]), np.stack([np.zeros(3), t.ravel()]))
@@ -121,6 +124,13 @@ def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float) -> Re
     good = tri.status == PointStatus.OK
     angles = _ray_angles_deg(cams.centers, tri.points[good], np.ones((2, int(good.sum())), bool))
     return RelativePose(R, t.ravel(), keep[good], tri.points[good], angles, int(mask_e.sum()), n_h)
+
+
+def _homography_inliers(first: np.ndarray, second: np.ndarray, threshold: float) -> int:
+    """Inliers of a homography (USAC) between normalised matches: many when the views have no parallax."""
+    _, mask = cv2.findHomography(np.ascontiguousarray(first), np.ascontiguousarray(second), cv2.USAC_ACCURATE,
+                                 threshold)
+    return 0 if mask is None else int(mask.sum())
 
 
 class _Incremental:
@@ -192,24 +202,42 @@ class _Incremental:
 
     def _try_pair(self, i: int, j: int) -> _PairCandidate | None:
         tracks = np.flatnonzero(self.seen[i] & self.seen[j])
-        pose = relative_pose(self.normalised[i, tracks], self.normalised[j, tracks],
-                             self.threshold / np.sqrt(self.focal[i] * self.focal[j]))
+        pose = relative_pose(self.normalised[i, tracks], self.normalised[j, tracks], self._pair_threshold(i, j),
+                             homography=False)
         if pose is None:
             return None
         angle = float(np.median(pose.angles_deg)) if len(pose.angles_deg) else 0.0
         return _PairCandidate(i, j, tracks[pose.inliers], pose.rotation, pose.translation, pose.essential_inliers,
                               pose.homography_inliers, angle)
 
+    def _pair_threshold(self, i: int, j: int) -> float:
+        return self.threshold / np.sqrt(self.focal[i] * self.focal[j])
+
+    def _fit_homography(self, c: _PairCandidate) -> None:
+        tracks = np.flatnonzero(self.seen[c.first] & self.seen[c.second])
+        c.homography_inliers = _homography_inliers(self.normalised[c.first, tracks], self.normalised[c.second, tracks],
+                                                  self._pair_threshold(c.first, c.second))
+
     def initialize(self) -> None:
         start = time.perf_counter()
         tried = [c for c in (self._try_pair(i, j) for i, j in self._candidate_pairs()) if c is not None]
-        usable = [c for c in tried if c.homography_inliers < _MAX_HOMOGRAPHY_SHARE * c.essential_inliers
-                  and len(c.inliers) >= 2 * self.settings.min_registration_points
-                  and c.median_angle_deg >= self.settings.min_pair_angle_deg]
+        # the best-scoring pair that a homography does not explain; the homography (the degeneracy test) is
+        # fitted best first, only until a pair passes
+        best = None
+        for c in sorted(tried, key=lambda c: -c.score):  # stable: among equal scores the first tried, as max()
+            if len(c.inliers) < 2 * self.settings.min_registration_points \
+                    or c.median_angle_deg < self.settings.min_pair_angle_deg:
+                continue
+            self._fit_homography(c)
+            if c.homography_inliers < _MAX_HOMOGRAPHY_SHARE * c.essential_inliers:
+                best = c
+                break
         self._timed("initial_pair", start)
-        if not usable:
+        if best is None:
+            for c in tried:
+                if c.homography_inliers is None:
+                    self._fit_homography(c)
             raise NotEnoughDataError(self._why_no_pair(tried))
-        best = max(usable, key=lambda c: c.score)
         self.initial_pair = (best.first, best.second)
         self.R[best.first], self.C[best.first] = np.eye(3), 0.0
         self.R[best.second], self.C[best.second] = best.rotation, -best.rotation.T @ best.translation
@@ -350,9 +378,9 @@ class _Incremental:
         m = len(tracks)
         views = np.bincount(obs.points, minlength=m)
         JtJ = (np.swapaxes(J, 1, 2) @ J).reshape(-1, 9)
-        normal = np.stack([np.bincount(obs.points, weights=JtJ[:, k], minlength=m) for k in range(9)], 1).reshape(m, 3, 3)
+        normal = np.stack([np.bincount(obs.points, weights=JtJ[:, k], minlength=m) for k in range(9)], axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            normal_inv = np.linalg.inv(normal + 1e-14 * np.trace(normal, axis1=1, axis2=2)[:, None, None] * np.eye(3))
+            normal_inv = inverse3(normal.reshape(m, 3, 3))
             A = np.eye(2) - J @ normal_inv[obs.points] @ np.swapaxes(J, 1, 2)
             det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
             leave_one_out = (A[:, 1, 1] * r[:, 0] ** 2 - (A[:, 0, 1] + A[:, 1, 0]) * r[:, 0] * r[:, 1]
