@@ -38,6 +38,9 @@ __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
 _RETRY_GROWTH = 1.2
 # A global bundle adjustment runs during growth when the registered frames have grown by this factor.
 _GLOBAL_BUNDLE_GROWTH = 1.25
+# During growth a bundle adjustment stops when a step lowers the cost by less than this fraction (Ceres' default;
+# the refinement adjusts again, to bundle_adjust's own tighter default).
+_GROWTH_TOLERANCE = 1e-6
 # Refinement stops once a round changes at most this share of the inlier decisions (after adjusting to them):
 # the rounds after that flip the same few borderline observations back and forth.
 _SETTLED_SHARE = 1e-3
@@ -243,7 +246,7 @@ class _Incremental:
         self.R[best.second], self.C[best.second] = best.rotation, -best.rotation.T @ best.translation
         self.frame_status[[best.first, best.second]] = FrameStatus.REGISTERED
         self._triangulate(np.flatnonzero(self.seen[best.first] & self.seen[best.second]))
-        self._bundle("huber")
+        self._bundle("huber", _GROWTH_TOLERANCE)
         self.last_global = 2
 
     def _why_no_pair(self, tried: list[_PairCandidate]) -> str:
@@ -299,7 +302,7 @@ class _Incremental:
             waiting = ~self.has_point & ((self.seen & self.inlier)[frames].sum(axis=0) >= 2)
             self._triangulate(np.flatnonzero(waiting))
             if len(frames) >= _GLOBAL_BUNDLE_GROWTH * self.last_global:
-                self._bundle("huber")
+                self._bundle("huber", _GROWTH_TOLERANCE)
                 self.last_global = len(frames)
                 self._reject(2.0 * self.threshold)
 
@@ -333,11 +336,12 @@ class _Incremental:
         self.inlier[np.ix_(frames, tracks)] = block
         self._timed("triangulation", start)
 
-    def _bundle(self, loss: str) -> None:
+    def _bundle(self, loss: str, function_tolerance: float | None = None) -> None:
         start = time.perf_counter()
         obs, frames, tracks = self._observations()
         fit = bundle_adjust(self.R[frames], self.C[frames], self.X[tracks], obs, self.K[frames], loss=loss,
-                            loss_scale=self.threshold)
+                            loss_scale=self.threshold,
+                            **({} if function_tolerance is None else {"function_tolerance": function_tolerance}))
         self.R[frames], self.C[frames], self.X[tracks] = fit.rotations, fit.centres, fit.points
         self._timed("bundle_adjustment", start)
 
