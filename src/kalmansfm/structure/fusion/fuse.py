@@ -89,7 +89,7 @@ from .inverse_depth import ViewGeometry, theta_to_point, view_geometry
 from .pairs import run_pairs
 from .recursive import run_recursive
 from .robust import Reweighting, observation_residuals, reweigh, serial_correlation
-from .settings import FusionSettings
+from .settings import UNRELIABLE_RELATIVE_DEPTH, FusionSettings
 
 __all__ = ["fuse"]
 
@@ -100,7 +100,7 @@ _MAX_SIGMA_PASSES = 8
 _CONVERSION_BLOCK = 16_384
 # A point whose distance from its first camera has a relative standard deviation above this is unreliable, above
 # _NO_DEPTH (three standard deviations reach infinity) degenerate.
-_UNRELIABLE_DEPTH = 0.1
+_UNRELIABLE_DEPTH = UNRELIABLE_RELATIVE_DEPTH
 _NO_DEPTH = 1.0 / 3.0
 # Reweighted passes under a fitted noise model (iteratively reweighted least squares after the pilot).
 _REWEIGHTED_PASSES = 2

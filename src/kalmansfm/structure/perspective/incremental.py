@@ -29,7 +29,7 @@ from .settings import (
 from ..reconstruction import Reconstruction
 from ..geometry.batched import inverse3
 from ..geometry.pinhole import CameraSet, camera_centres, triangulate_points
-from ..fusion import FusionSettings, fuse
+from ..fusion import UNRELIABLE_RELATIVE_DEPTH, FusionSettings, fuse
 from ..points import PointStatus
 
 __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
@@ -41,9 +41,6 @@ _GLOBAL_BUNDLE_GROWTH = 1.25
 # During growth a bundle adjustment stops when a step lowers the cost by less than this fraction (Ceres' default;
 # the refinement adjusts again, to bundle_adjust's own tighter default).
 _GROWTH_TOLERANCE = 1e-6
-# Refinement stops once a round changes at most this share of the inlier decisions (after adjusting to them):
-# the rounds after that flip the same few borderline observations back and forth.
-_SETTLED_SHARE = 1e-3
 # Initial pair: the triangulation angle counts up to this many degrees in the pair's score.
 _ANGLE_CAP_DEG = 20.0
 # Initial pair: a pair is degenerate when a homography explains at least this share of the essential inliers.
@@ -370,11 +367,11 @@ class _Incremental:
         """(P,) tracks whose fusion would give back their point and inliers: nothing to re-estimate.
 
         A reconstructed track qualifies when every registered observation of it is an inlier (none to
-        readmit), all lie in front of their cameras, and the fusion engine's outlier test passes at the
+        readmit), all lie in front of their cameras, and the fusion engine's tests pass at the
         bundle-adjusted point — which is already the track's least-squares point for these cameras:
         each observation's leave-one-out residual rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r within the χ²(2) gate (tracks
-        of ≥ 3 views), the whole cost within the χ²(1) gate (tracks of 2 views).  Computed on the
-        observation list, not on (views × tracks) arrays.
+        of ≥ 3 views), the whole cost within the χ²(1) gate (tracks of 2 views), a reliable depth and
+        the triangulation angle.  Computed on the observation list, not on (views × tracks) arrays.
         """
         obs, frames, tracks = self._observations()
         r, depth, _, J = residuals_and_jacobians(self.R[frames], self.C[frames], self.X[tracks], obs,
@@ -396,6 +393,18 @@ class _Incremental:
         bad_track = np.bincount(obs.points, weights=bad, minlength=m) > 0
         cost = np.bincount(obs.points, weights=np.einsum("na,na->n", r, r), minlength=m)
         bad_track |= (views == 2) & (cost > gate1 * sigma2)
+        # the fusion's status tests as well: enough parallax for a reliable depth (σ_d / d from the first camera that
+        # sees the point, σ² N⁻¹ its covariance) and the triangulation angle
+        first = np.full(m, len(frames))
+        np.minimum.at(first, obs.points, obs.cameras)
+        ray = self.X[tracks] - self.C[frames[np.minimum(first, len(frames) - 1)]]
+        distance = np.linalg.norm(ray, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            relative = np.sqrt(sigma2 * np.abs(np.einsum("ni,nij,nj->n", ray, normal_inv, ray))) / distance**2
+        used = np.zeros((len(frames), m), bool)
+        used[obs.cameras, obs.points] = True
+        angles = _ray_angles_deg(self.C[frames], self.X[tracks], used)
+        bad_track |= ~(relative <= UNRELIABLE_RELATIVE_DEPTH) | (angles < self.settings.min_triangulation_angle_deg)
         settled = np.zeros(self.P, bool)
         settled[tracks] = ~bad_track & (views >= 2) & (views == self.seen[frames][:, tracks].sum(axis=0))
         return settled
@@ -405,18 +414,17 @@ class _Incremental:
         candidates = np.flatnonzero(self.seen[frames].sum(axis=0) >= 2)
         self._triangulate(candidates[~self._settled(self.threshold)[candidates]], readmit=True)
         self._bundle("huber")
+        adjusted = False  # by least squares, on the current inliers
         for _ in range(max_rounds):
             sigma, _, _ = self._sigma()
             gate = max(self.threshold, np.sqrt(self.settings.chi2_bound) * sigma)
-            before = self.inlier.copy()
+            inlier, reconstructed = self.inlier.copy(), self.has_point.copy()
             # only the tracks the outlier test would change (or with observations to readmit) are fused again
             self._triangulate(candidates[~self._settled(gate)[candidates]], gate_px=gate, readmit=True)
-            changed = int(np.count_nonzero(before != self.inlier))
-            if changed == 0:
-                break  # the bundle adjustment would start at its own minimum
+            if adjusted and np.array_equal(inlier, self.inlier) and np.array_equal(reconstructed, self.has_point):
+                break  # converged: another bundle adjustment would start at its own minimum
             self._bundle("linear")
-            if changed <= _SETTLED_SHARE * np.count_nonzero(self.inlier & self.seen):
-                break
+            adjusted = True
 
     # -- 4. result ------------------------------------------------------------------------------------
     def result(self, method: str) -> Reconstruction:
