@@ -11,8 +11,8 @@ from ...errors import InvalidInputError
 from ..._validation import check_count, check_positive
 from ...estimation.noise_model import NOISE_MODELS
 
-__all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_NOISE_MODEL", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS", "FusionSettings",
-           "UNRELIABLE_RELATIVE_DEPTH", "check_orientation"]
+__all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_NOISE_MODEL", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS",
+           "UNRELIABLE_RELATIVE_DEPTH", "FusionSettings", "check_orientation"]
 
 FUSION_METHODS = ("recursive", "batch", "pairs")
 DEFAULT_OUTLIER_PROBABILITY = 0.999
