@@ -87,15 +87,24 @@ def image_similarity(features: Sequence[ImageFeatures], settings: FeatureSetting
         # d[a, j, b]: feature a of image i against feature b of image i + 1 + j (squared distance, or Hamming)
         products = (stacked[i] @ others.reshape(k * m, width).T).reshape(m, k, m)
         d = norms[i][:, None, None] + norms[i + 1:][None] - 2.0 * products
-        d = np.where(valid[i][:, None, None] & valid[i + 1:][None], np.maximum(d, 0.0), np.inf)
-        best_b = np.argmin(d, axis=2)                                     # (m, k)
-        row = np.partition(d, 1, axis=2)[..., :2]                         # (m, k, 2)
-        best_a = np.argmin(d, axis=0)                                     # (k, m)
-        col_second = np.partition(d, 1, axis=0)[1]                        # (k, m)
+        np.maximum(d, 0.0, out=d)
+        d[~valid[i]] = np.inf  # padding rows and columns (images with fewer features) match nothing
+        d[:, ~valid[i + 1:]] = np.inf
+        # the two smallest along an axis by two reductions (the smallest masked with inf, then put back),
+        # not a partition: 3× faster here
+        best_b = np.argmin(d, axis=2)[..., None]                          # (m, k, 1)
+        smallest = np.take_along_axis(d, best_b, axis=2)
+        np.put_along_axis(d, best_b, np.inf, axis=2)
+        second = d.min(axis=2)                                            # (m, k)
+        np.put_along_axis(d, best_b, smallest, axis=2)
+        best_b, smallest = best_b[..., 0], smallest[..., 0]
+        best_a = np.argmin(d, axis=0)[None]                               # (1, k, m)
+        np.put_along_axis(d, best_a, np.inf, axis=0)
+        col_second = d.min(axis=0)                                        # (k, m)
         columns = np.arange(k)[None, :]
-        mutual = best_a[columns, best_b] == ranks[:, None]
-        ok = mutual & np.isfinite(row[..., 0]) & (row[..., 0] < factor * row[..., 1]) \
-            & (row[..., 0] < factor * col_second[columns, best_b])
+        mutual = best_a[0][columns, best_b] == ranks[:, None]
+        ok = mutual & np.isfinite(smallest) & (smallest < factor * second) \
+            & (smallest < factor * col_second[columns, best_b])
         return ok.sum(axis=0)
 
     counts = np.zeros((n, n), np.int64)

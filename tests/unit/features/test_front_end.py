@@ -107,10 +107,17 @@ def test_settings_are_validated():
         FeatureSettings(min_inliers=3)
 
 
-def test_image_similarity_counts_the_matches_of_the_strongest_features(ring):
+@pytest.mark.parametrize("short", [None, 2])
+def test_image_similarity_counts_the_matches_of_the_strongest_features(ring, short):
+    """``short``: that image keeps only its 30 strongest features, fewer than the 64 compared (padding)."""
     _, feats = ring
+    feats = list(feats[:6])
+    if short is not None:
+        f = feats[short]
+        feats[short] = type(f)(f.keypoints[:30], f.scales[:30], f.orientations[:30], f.responses[:30],
+                               f.descriptors[:30], f.binary)
     settings = FeatureSettings(retrieval_features=64)
-    similarity = image_similarity(feats[:6], settings)
+    similarity = image_similarity(feats, settings)
     for i in range(6):
         for j in range(6):
             a, b = feats[i].descriptors[:64], feats[j].descriptors[:64]

@@ -17,10 +17,12 @@ from kalmansfm.structure.perspective.bundle import (
     _similarity_directions,
     bundle_adjust,
     compare_in_gauge,
+    coupling_reference,
     free_network_covariances,
     reprojection_residuals,
 )
 from kalmansfm.structure.geometry.rotation import rotation_exp, rotation_log
+from kalmansfm.structure.perspective._schur_kernel import schur_coupling_kernel
 
 
 def small_problem(seed=0, frames=5, points=40, pixel_std=0.5, skew=0.0, min_track_length=2):
@@ -150,13 +152,35 @@ def test_free_network_covariances_equal_the_dense_pseudo_inverse(monkeypatch, de
     np.testing.assert_allclose(cov.cameras, ref_cams, rtol=1e-7, atol=1e-9 * np.abs(ref_cams).max())
 
 
-def test_dense_and_sparse_solvers_take_the_same_path(monkeypatch):
-    s, K, obs, start = small_problem(frames=5, points=30)
-    dense = bundle_adjust(*start, obs, K)
-    monkeypatch.setattr(bundle_module, "_DENSE_COUPLING_BYTES", 0)
-    sparse = bundle_adjust(*start, obs, K)
-    assert sparse.iterations == dense.iterations
-    np.testing.assert_allclose(sparse.points, dense.points, rtol=1e-9, atol=1e-9)
+@pytest.mark.parametrize("dense", [True, False])
+def test_compiled_schur_coupling_equals_the_reference(monkeypatch, dense):
+    """The numba kernel against the dense (and sparse) product, observations in a shuffled order."""
+    _, _, obs, _ = small_problem(frames=6, points=40, min_track_length=2)
+    rng = np.random.default_rng(5)
+    shuffle = rng.permutation(len(obs))
+    obs = ObservationList(obs.cameras[shuffle], obs.points[shuffle], obs.pixels[shuffle])
+    n, m = 6, int(obs.points.max()) + 1
+    W = rng.normal(size=(len(obs), 6, 3))
+    A = rng.normal(size=(m, 3, 3))
+    Y = W @ (A @ np.swapaxes(A, 1, 2) + np.eye(3))[obs.points]  # W V⁻¹ with V⁻¹ symmetric
+    if not dense:
+        monkeypatch.setattr(bundle_module, "_DENSE_COUPLING_BYTES", 0)
+    reference = coupling_reference(obs, n, m, Y, W)
+    order, starts = obs.by_point
+    compiled = schur_coupling_kernel(order, starts, obs.cameras, Y, W, n)
+    np.testing.assert_allclose(compiled, reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
+    np.testing.assert_allclose(compiled, compiled.T, rtol=0, atol=1e-12 * np.abs(reference).max())
+
+
+def test_bundle_adjustment_takes_the_same_path_with_the_reference_coupling(monkeypatch):
+    _, K, obs, start = small_problem(frames=5, points=30)
+    compiled = bundle_adjust(*start, obs, K)
+    m = len(start[2])
+    monkeypatch.setattr(bundle_module, "schur_coupling_kernel",
+                        lambda order, starts, cameras, left, right, n: coupling_reference(obs, n, m, left, right))
+    reference = bundle_adjust(*start, obs, K)
+    assert reference.iterations == compiled.iterations
+    np.testing.assert_allclose(reference.points, compiled.points, rtol=1e-9, atol=1e-9)
 
 
 def test_point_and_camera_nees_after_similarity_alignment():

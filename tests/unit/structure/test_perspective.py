@@ -178,3 +178,28 @@ def test_a_keyword_beside_settings_is_refused_not_silently_overridden():
     with pytest.raises(InvalidInputError, match="inside settings"):
         reconstruct_perspective(s.observations, s.intrinsics, outlier_threshold_px=2.0,
                                 settings=PerspectiveSettings())
+
+
+def test_settled_tracks_are_those_a_full_fusion_gives_back_unchanged():
+    """The refinement fuses again only the tracks its outlier test flags; fusing every track must agree:
+    the settled ones keep their points (to the fusion's convergence) and all their observations."""
+    from kalmansfm.structure.perspective.incremental import _Incremental
+
+    s = perspective_scene(frames=10, points=400, pixel_std=0.7, outlier_fraction=0.03, seed=1)
+    state = _Incremental(s.observations, np.broadcast_to(s.intrinsics, (10, 3, 3)).copy(), PerspectiveSettings())
+    state.initialize()
+    state.grow()
+    state.refine()
+    gate = 2.5
+    settled = state._settled(gate)
+    # outliers were injected: some tracks hold rejected observations, and they are never settled
+    registered = state.registered
+    rejected = (state.seen & ~state.inlier)[registered].any(axis=0)
+    assert rejected.any() and not (settled & rejected).any()
+    assert settled.sum() > 0.8 * state.has_point.sum()
+    points, inlier = state.X.copy(), state.inlier.copy()
+    frames = np.flatnonzero(registered)
+    state._triangulate(np.flatnonzero(state.seen[frames].sum(axis=0) >= 2), gate_px=gate, readmit=True)
+    np.testing.assert_array_equal(state.inlier[:, settled], inlier[:, settled])
+    scale = np.linalg.norm(points[settled], axis=1)
+    assert np.all(np.linalg.norm(state.X[settled] - points[settled], axis=1) < 1e-5 * scale)

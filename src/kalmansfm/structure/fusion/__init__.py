@@ -8,12 +8,19 @@ from .fuse import fuse
 from .history import FusionHistory
 from .inverse_depth import GatedUpdate, iterated_update
 from .pairs import PairTriangulations, pair_triangulations
-from .settings import DEFAULT_CHUNK_POINTS, DEFAULT_OUTLIER_PROBABILITY, FUSION_METHODS, FusionSettings
+from .settings import (
+    DEFAULT_CHUNK_POINTS,
+    DEFAULT_OUTLIER_PROBABILITY,
+    FUSION_METHODS,
+    UNRELIABLE_RELATIVE_DEPTH,
+    FusionSettings,
+)
 
 __all__ = [
     "DEFAULT_CHUNK_POINTS",
     "DEFAULT_OUTLIER_PROBABILITY",
     "FUSION_METHODS",
+    "UNRELIABLE_RELATIVE_DEPTH",
     "FusionHistory",
     "FusionSettings",
     "GatedUpdate",

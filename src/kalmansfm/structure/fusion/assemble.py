@@ -23,7 +23,7 @@ from .chunks import ChunkResult
 from .history import FusionHistory
 from .inputs import are_poses
 from .inverse_depth import ViewGeometry, theta_to_point
-from .settings import FusionSettings
+from .settings import UNRELIABLE_RELATIVE_DEPTH, FusionSettings
 
 __all__ = ["BlockResults", "assemble"]
 
@@ -31,7 +31,7 @@ __all__ = ["BlockResults", "assemble"]
 _CONVERSION_BLOCK = 16_384
 # A point whose distance from its first camera has a relative standard deviation above this is unreliable, above
 # _NO_DEPTH (three standard deviations reach infinity) degenerate.
-_UNRELIABLE_DEPTH = 0.1
+_UNRELIABLE_DEPTH = UNRELIABLE_RELATIVE_DEPTH
 _NO_DEPTH = 1.0 / 3.0
 
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.pinhole import inverse3, project_points, projection_jacobians, refine_points, triangulate_points
+from ..geometry.batched import inverse3, jacobian_products
+from ..geometry.pinhole import project_points, projection_jacobians, refine_points, triangulate_points
 from ..points import PointStatus
 from .chunks import Chunk, ChunkResult, concat_history, finish
 from .weighted import refine_weighted
@@ -16,8 +17,8 @@ def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray
     """(V, n) rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r of each used observation (unit σ), NaN elsewhere."""
     J = projection_jacobians(P, X)
     J = np.where(mask[..., None, None], J, 0.0)
-    N_inv = inverse3(np.einsum("vnai,vnaj->nij", J, J))
-    hat = np.einsum("vnai,nij,vnbj->vnab", J, N_inv, J)
+    N_inv = inverse3(jacobian_products(J)[0])
+    hat = J @ N_inv @ np.swapaxes(J, -1, -2)
     A = np.eye(2) - hat
     det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
     det = np.where(mask & (det > 1e-12), det, np.nan)

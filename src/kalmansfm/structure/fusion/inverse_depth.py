@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...estimation.kalman import kalman_update
-from ..geometry.pinhole import decompose_projection, inverse3, project_each, solve3
+from ..geometry.batched import inverse3, solve3
+from ..geometry.pinhole import decompose_projection, project_each
 
 __all__ = ["GatedUpdate", "ViewGeometry", "iterated_update", "pair_starts", "residuals_and_cheirality", "start_pairs",
            "theta_to_point", "view_geometry"]

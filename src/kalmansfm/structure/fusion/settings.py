@@ -11,8 +11,8 @@ from ...errors import InvalidInputError
 from ..._validation import check_count, check_positive
 from ...estimation.noise_model import NOISE_MODELS
 
-__all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_NOISE_MODEL", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS", "FusionSettings",
-           "check_orientation"]
+__all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_NOISE_MODEL", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS",
+           "UNRELIABLE_RELATIVE_DEPTH", "FusionSettings", "check_orientation"]
 
 FUSION_METHODS = ("recursive", "batch", "pairs")
 DEFAULT_OUTLIER_PROBABILITY = 0.999
@@ -20,6 +20,9 @@ DEFAULT_CHUNK_POINTS = 65_536
 #: The largest image noise σ a fusion takes (pixels).
 MAX_PIXEL_STD = 1e6
 DEFAULT_NOISE_MODEL = "mixture"
+#: A fused point whose distance from its first camera has a relative standard deviation above this is
+#: ``unreliable`` (little parallax), not ``ok`` (the perspective refinement applies the same test).
+UNRELIABLE_RELATIVE_DEPTH = 0.1
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.pinhole import project_each, solve3
+from ..geometry.batched import solve3
+from ..geometry.pinhole import project_each
 from ..points import PointStatus
 
 __all__ = ["WeightedPoints", "refine_weighted"]

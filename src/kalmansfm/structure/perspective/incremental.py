@@ -12,7 +12,14 @@ import cv2
 import numpy as np
 
 from ...errors import NotEnoughDataError
-from .bundle import ObservationList, bundle_adjust, free_network_covariances, reprojection_residuals
+from .bundle import (
+    ObservationList,
+    bundle_adjust,
+    camera_frame_projections,
+    free_network_covariances,
+    reprojection_residuals,
+    residuals_and_jacobians,
+)
 from .settings import (
     FrameStatus,
     PerspectiveSettings,
@@ -20,8 +27,9 @@ from .settings import (
     perspective_reconstruction,
 )
 from ..reconstruction import Reconstruction
+from ..geometry.batched import inverse3
 from ..geometry.pinhole import CameraSet, camera_centres, triangulate_points
-from ..fusion import fuse
+from ..fusion import UNRELIABLE_RELATIVE_DEPTH, FusionSettings, fuse
 from ..points import PointStatus
 
 __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
@@ -30,6 +38,9 @@ __all__ = ["RelativePose", "reconstruct_incremental", "relative_pose"]
 _RETRY_GROWTH = 1.2
 # A global bundle adjustment runs during growth when the registered frames have grown by this factor.
 _GLOBAL_BUNDLE_GROWTH = 1.25
+# During growth a bundle adjustment stops when a step lowers the cost by less than this fraction (Ceres' default;
+# the refinement adjusts again, to bundle_adjust's own tighter default).
+_GROWTH_TOLERANCE = 1e-6
 # Initial pair: the triangulation angle counts up to this many degrees in the pair's score.
 _ANGLE_CAP_DEG = 20.0
 # Initial pair: a pair is degenerate when a homography explains at least this share of the essential inliers.
@@ -44,7 +55,7 @@ class _PairCandidate:
     rotation: np.ndarray
     translation: np.ndarray
     essential_inliers: int
-    homography_inliers: int
+    homography_inliers: int | None  # None until fitted (only for the pairs that could be chosen)
     median_angle_deg: float
 
     @property
@@ -75,7 +86,8 @@ class RelativePose:
         inliers that triangulate.
     points : (k, 3) their linear triangulation in the first view's frame.
     angles_deg : (k,) their triangulation angles.
-    essential_inliers, homography_inliers : RANSAC inlier counts of the two models.
+    essential_inliers, homography_inliers : RANSAC inlier counts of the two models (the homography's
+        None when it was not fitted).
     """
 
     rotation: np.ndarray
@@ -84,15 +96,17 @@ class RelativePose:
     points: np.ndarray
     angles_deg: np.ndarray
     essential_inliers: int
-    homography_inliers: int
+    homography_inliers: int | None
 
 
-def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float) -> RelativePose | None:
+def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float, homography: bool = True
+                  ) -> RelativePose | None:
     """Essential matrix (RANSAC), homography (RANSAC) and pose by cheirality from normalised matches (k, 2).
 
     ``threshold`` is the RANSAC inlier distance in normalised units.  None when no
     essential matrix is found; otherwise the pose with however many inliers
     triangulate in front of both views (few when the views have no parallax).
+    ``homography=False`` skips the homography (the caller fits it later if needed).
     """
     a, b = np.ascontiguousarray(first), np.ascontiguousarray(second)
     if len(a) < 5:
@@ -102,8 +116,7 @@ def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float) -> Re
     E, mask_e = cv2.findEssentialMat(a, b, np.eye(3), method=cv2.USAC_ACCURATE, prob=0.999, threshold=threshold)
     if E is None or E.shape != (3, 3) or mask_e is None:
         return None
-    _, mask_h = cv2.findHomography(a, b, cv2.USAC_ACCURATE, threshold)
-    n_h = 0 if mask_h is None else int(mask_h.sum())
+    n_h = _homography_inliers(a, b, threshold) if homography else None
     _, R, t, mask_pose = cv2.recoverPose(E, a, b, np.eye(3), mask=mask_e.copy())
     keep = np.flatnonzero(mask_pose.ravel() > 0)
     cams = CameraSet.from_pose(np.eye(3), np.stack([np.eye(3), R]), np.stack([np.zeros(3), t.ravel()]))
@@ -111,6 +124,13 @@ def relative_pose(first: np.ndarray, second: np.ndarray, threshold: float) -> Re
     good = tri.status == PointStatus.OK
     angles = _ray_angles_deg(cams.centers, tri.points[good], np.ones((2, int(good.sum())), bool))
     return RelativePose(R, t.ravel(), keep[good], tri.points[good], angles, int(mask_e.sum()), n_h)
+
+
+def _homography_inliers(first: np.ndarray, second: np.ndarray, threshold: float) -> int:
+    """Inliers of a homography (USAC) between normalised matches: many when the views have no parallax."""
+    _, mask = cv2.findHomography(np.ascontiguousarray(first), np.ascontiguousarray(second), cv2.USAC_ACCURATE,
+                                 threshold)
+    return 0 if mask is None else int(mask.sum())
 
 
 class _Incremental:
@@ -182,30 +202,48 @@ class _Incremental:
 
     def _try_pair(self, i: int, j: int) -> _PairCandidate | None:
         tracks = np.flatnonzero(self.seen[i] & self.seen[j])
-        pose = relative_pose(self.normalised[i, tracks], self.normalised[j, tracks],
-                             self.threshold / np.sqrt(self.focal[i] * self.focal[j]))
+        pose = relative_pose(self.normalised[i, tracks], self.normalised[j, tracks], self._pair_threshold(i, j),
+                             homography=False)
         if pose is None:
             return None
         angle = float(np.median(pose.angles_deg)) if len(pose.angles_deg) else 0.0
         return _PairCandidate(i, j, tracks[pose.inliers], pose.rotation, pose.translation, pose.essential_inliers,
                               pose.homography_inliers, angle)
 
+    def _pair_threshold(self, i: int, j: int) -> float:
+        return self.threshold / np.sqrt(self.focal[i] * self.focal[j])
+
+    def _fit_homography(self, c: _PairCandidate) -> None:
+        tracks = np.flatnonzero(self.seen[c.first] & self.seen[c.second])
+        c.homography_inliers = _homography_inliers(self.normalised[c.first, tracks], self.normalised[c.second, tracks],
+                                                  self._pair_threshold(c.first, c.second))
+
     def initialize(self) -> None:
         start = time.perf_counter()
         tried = [c for c in (self._try_pair(i, j) for i, j in self._candidate_pairs()) if c is not None]
-        usable = [c for c in tried if c.homography_inliers < _MAX_HOMOGRAPHY_SHARE * c.essential_inliers
-                  and len(c.inliers) >= 2 * self.settings.min_registration_points
-                  and c.median_angle_deg >= self.settings.min_pair_angle_deg]
+        # the best-scoring pair that a homography does not explain; the homography (the degeneracy test) is
+        # fitted best first, only until a pair passes
+        best = None
+        for c in sorted(tried, key=lambda c: -c.score):  # stable: among equal scores the first tried, as max()
+            if len(c.inliers) < 2 * self.settings.min_registration_points \
+                    or c.median_angle_deg < self.settings.min_pair_angle_deg:
+                continue
+            self._fit_homography(c)
+            if c.homography_inliers < _MAX_HOMOGRAPHY_SHARE * c.essential_inliers:
+                best = c
+                break
         self._timed("initial_pair", start)
-        if not usable:
+        if best is None:
+            for c in tried:
+                if c.homography_inliers is None:
+                    self._fit_homography(c)
             raise NotEnoughDataError(self._why_no_pair(tried))
-        best = max(usable, key=lambda c: c.score)
         self.initial_pair = (best.first, best.second)
         self.R[best.first], self.C[best.first] = np.eye(3), 0.0
         self.R[best.second], self.C[best.second] = best.rotation, -best.rotation.T @ best.translation
         self.frame_status[[best.first, best.second]] = FrameStatus.REGISTERED
         self._triangulate(np.flatnonzero(self.seen[best.first] & self.seen[best.second]))
-        self._bundle("huber")
+        self._bundle("huber", _GROWTH_TOLERANCE)
         self.last_global = 2
 
     def _why_no_pair(self, tried: list[_PairCandidate]) -> str:
@@ -261,7 +299,7 @@ class _Incremental:
             waiting = ~self.has_point & ((self.seen & self.inlier)[frames].sum(axis=0) >= 2)
             self._triangulate(np.flatnonzero(waiting))
             if len(frames) >= _GLOBAL_BUNDLE_GROWTH * self.last_global:
-                self._bundle("huber")
+                self._bundle("huber", _GROWTH_TOLERANCE)
                 self.last_global = len(frames)
                 self._reject(2.0 * self.threshold)
 
@@ -295,11 +333,12 @@ class _Incremental:
         self.inlier[np.ix_(frames, tracks)] = block
         self._timed("triangulation", start)
 
-    def _bundle(self, loss: str) -> None:
+    def _bundle(self, loss: str, function_tolerance: float | None = None) -> None:
         start = time.perf_counter()
         obs, frames, tracks = self._observations()
         fit = bundle_adjust(self.R[frames], self.C[frames], self.X[tracks], obs, self.K[frames], loss=loss,
-                            loss_scale=self.threshold)
+                            loss_scale=self.threshold,
+                            **({} if function_tolerance is None else {"function_tolerance": function_tolerance}))
         self.R[frames], self.C[frames], self.X[tracks] = fit.rotations, fit.centres, fit.points
         self._timed("bundle_adjustment", start)
 
@@ -324,20 +363,68 @@ class _Incremental:
         return float(np.sqrt(sq / dof)), float(np.sqrt(sq / max(len(obs), 1))), dof
 
     # -- 3. refinement -------------------------------------------------------------------------------
+    def _settled(self, gate_px: float) -> np.ndarray:
+        """(P,) tracks whose fusion would give back their point and inliers: nothing to re-estimate.
+
+        A reconstructed track qualifies when every registered observation of it is an inlier (none to
+        readmit), all lie in front of their cameras, and the fusion engine's tests pass at the
+        bundle-adjusted point — which is already the track's least-squares point for these cameras:
+        each observation's leave-one-out residual rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r within the χ²(2) gate (tracks
+        of ≥ 3 views), the whole cost within the χ²(1) gate (tracks of 2 views), a reliable depth and
+        the triangulation angle.  Computed on the observation list, not on (views × tracks) arrays.
+        """
+        obs, frames, tracks = self._observations()
+        r, depth, _, J = residuals_and_jacobians(self.R[frames], self.C[frames], self.X[tracks], obs,
+                                                 camera_frame_projections(self.K[frames]))
+        m = len(tracks)
+        views = np.bincount(obs.points, minlength=m)
+        JtJ = (np.swapaxes(J, 1, 2) @ J).reshape(-1, 9)
+        normal = np.stack([np.bincount(obs.points, weights=JtJ[:, k], minlength=m) for k in range(9)], axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal_inv = inverse3(normal.reshape(m, 3, 3))
+            A = np.eye(2) - J @ normal_inv[obs.points] @ np.swapaxes(J, 1, 2)
+            det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+            leave_one_out = (A[:, 1, 1] * r[:, 0] ** 2 - (A[:, 0, 1] + A[:, 1, 0]) * r[:, 0] * r[:, 1]
+                             + A[:, 0, 0] * r[:, 1] ** 2) / det
+        # the fusion's unit is σ = gate / √χ²₂(p): its χ²(2) gate is gate² in pixels², its χ²(1) gate scales alike
+        sigma2 = gate_px**2 / self.settings.chi2_bound
+        gate1 = FusionSettings(outlier_probability=self.settings.outlier_probability).gate1
+        bad = (depth <= 0) | ((views[obs.points] >= 3) & ~(leave_one_out <= gate_px**2))
+        bad_track = np.bincount(obs.points, weights=bad, minlength=m) > 0
+        cost = np.bincount(obs.points, weights=np.einsum("na,na->n", r, r), minlength=m)
+        bad_track |= (views == 2) & (cost > gate1 * sigma2)
+        # the fusion's status tests as well: enough parallax for a reliable depth (σ_d / d from the first camera that
+        # sees the point, σ² N⁻¹ its covariance) and the triangulation angle
+        first = np.full(m, len(frames))
+        np.minimum.at(first, obs.points, obs.cameras)
+        ray = self.X[tracks] - self.C[frames[np.minimum(first, len(frames) - 1)]]
+        distance = np.linalg.norm(ray, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            relative = np.sqrt(sigma2 * np.abs(np.einsum("ni,nij,nj->n", ray, normal_inv, ray))) / distance**2
+        used = np.zeros((len(frames), m), bool)
+        used[obs.cameras, obs.points] = True
+        angles = _ray_angles_deg(self.C[frames], self.X[tracks], used)
+        bad_track |= ~(relative <= UNRELIABLE_RELATIVE_DEPTH) | (angles < self.settings.min_triangulation_angle_deg)
+        settled = np.zeros(self.P, bool)
+        settled[tracks] = ~bad_track & (views >= 2) & (views == self.seen[frames][:, tracks].sum(axis=0))
+        return settled
+
     def refine(self, max_rounds: int = 8) -> None:
         frames = np.flatnonzero(self.registered)
         candidates = np.flatnonzero(self.seen[frames].sum(axis=0) >= 2)
-        self._triangulate(candidates, readmit=True)
+        self._triangulate(candidates[~self._settled(self.threshold)[candidates]], readmit=True)
         self._bundle("huber")
-        previous = None
+        adjusted = False  # by least squares, on the current inliers
         for _ in range(max_rounds):
             sigma, _, _ = self._sigma()
             gate = max(self.threshold, np.sqrt(self.settings.chi2_bound) * sigma)
-            self._triangulate(candidates, gate_px=gate, readmit=True)
+            inlier, reconstructed = self.inlier.copy(), self.has_point.copy()
+            # only the tracks the outlier test would change (or with observations to readmit) are fused again
+            self._triangulate(candidates[~self._settled(gate)[candidates]], gate_px=gate, readmit=True)
+            if adjusted and np.array_equal(inlier, self.inlier) and np.array_equal(reconstructed, self.has_point):
+                break  # converged: another bundle adjustment would start at its own minimum
             self._bundle("linear")
-            if previous is not None and np.array_equal(previous, self.inlier):
-                break
-            previous = self.inlier.copy()
+            adjusted = True
 
     # -- 4. result ------------------------------------------------------------------------------------
     def result(self, method: str) -> Reconstruction:

@@ -26,7 +26,10 @@ Pipeline (``method="batch"``, the default)
    observations (so an early wrong rejection is undone), then bundle
    adjustment with the robust loss, then rounds of [re-estimate the points
    with leave-one-out outlier tests → bundle adjustment by plain least squares
-   on the inliers] until the inlier set stops changing.  An observation is an
+   on the inliers] until a round changes neither the inliers nor the reconstructed
+   tracks; a round fuses again only the tracks whose result could change (those
+   with observations to readmit, or that fail the fusion's tests at their
+   bundle-adjusted point).  An observation is an
    outlier when its leave-one-out residual (where the other views put it) is
    beyond both ``outlier_threshold_px`` and the χ²(2) bound of
    ``outlier_probability`` under the estimated σ.
