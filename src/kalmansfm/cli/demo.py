@@ -48,6 +48,9 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
                    help="--input: at most this many corners are detected and tracked")
     p.add_argument("--redetect", action="store_true",
                    help="--input: detect new corners where tracks were lost (see 'kalmansfm track --help')")
+    p.add_argument("--reattach", type=int, default=defaults.reattach_frames, metavar="N",
+                   help="--input with --redetect: lost tracks found again within N frames keep their ids (see "
+                   "'kalmansfm track --help')")
     p.add_argument("--camera", choices=("affine", "perspective"), default="affine",
                    help="affine: factorization; perspective: calibrated reconstruction of your --input with "
                    "--intrinsics or --focal (bundle adjustment, covariances in the free-network gauge)")
@@ -66,9 +69,10 @@ def run(args: argparse.Namespace) -> int:
     if args.camera == "affine" and (args.focal is not None or args.intrinsics is not None):
         raise InvalidInputError("--intrinsics and --focal describe a perspective camera: add --camera perspective")
     with as_typed({"n_frames": "--frames", "seed": "--seed", "focal": "--focal", "intrinsics": "--intrinsics",
-                   "input": "--input", "max_features": "--max-features"}):
+                   "input": "--input", "max_features": "--max-features", "reattach_frames": "--reattach", "redetect": "--redetect"}):
         camera = Affine() if args.camera == "affine" else Perspective(intrinsics=args.intrinsics, focal=args.focal)
-        tracker = TrackerSettings(matcher=args.matcher, max_features=args.max_features, redetect=args.redetect)
+        tracker = TrackerSettings(matcher=args.matcher, max_features=args.max_features, redetect=args.redetect,
+                                  reattach_frames=args.reattach)
         result = run_demo(DemoRequest(
             args.out, input=args.input, seed=args.seed, n_frames=args.frames, smooth=args.smooth,
             progress=not args.quiet, camera=camera, tracker=tracker))

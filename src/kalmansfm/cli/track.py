@@ -50,6 +50,9 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
     p.add_argument("--max-misses", type=int, default=DEFAULTS.max_misses, metavar="N",
                    help="frames a track may coast before it is lost (default: 3 with --matcher search, 5 with differential)")
     p.add_argument("--redetect", action="store_true", help="add new corners in empty regions as tracks are lost")
+    p.add_argument("--reattach", type=int, default=DEFAULTS.reattach_frames, metavar="N",
+                   help="with --redetect: a track lost at most N frames ago takes a redetected corner in its predicted "
+                   "gate whose descriptor and patch match it, and keeps its id (occlusions); 0: off")
     p.add_argument("--smooth", action="store_true",
                    help="write RTS-smoothed positions and covariances (fixed interval: each frame uses all frames)")
     p.add_argument("--smooth-lag", type=int, default=None, metavar="L",
@@ -60,7 +63,7 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
 def settings_from_args(args: argparse.Namespace) -> TrackerSettings:
     """The tracker settings the options ask for (the others keep their defaults)."""
     with as_typed({"window": "--window", "gate_probability": "--gate", "gate_radius": "--gate-radius",
-                   "max_misses": "--max-misses", "max_features": "--max-features"}):
+                   "max_misses": "--max-misses", "max_features": "--max-features", "reattach_frames": "--reattach", "redetect": "--redetect"}):
         return TrackerSettings(
             matcher=args.matcher,
             window=args.window,
@@ -70,6 +73,7 @@ def settings_from_args(args: argparse.Namespace) -> TrackerSettings:
             max_misses=args.max_misses,
             max_features=DEFAULTS.max_features if args.max_features is None else args.max_features,
             redetect=args.redetect,
+            reattach_frames=args.reattach,
         )
 
 

@@ -106,6 +106,10 @@ class TrackerSettings:
     redetect : add corners in empty regions every ``redetect_every`` frames, new ids,
         up to ``max_features`` live tracks.
     redetect_every : frames between two redetections.
+    reattach_frames : with ``redetect``, a track lost at most this many frames ago takes a
+        redetected corner as its own again (same id) when the corner lies in the track's
+        predicted gate and its descriptor matches the track's (:mod:`kalmansfm.tracking.reattach`);
+        0 (default): a lost track stays lost.
     max_search_radius : the search box never exceeds this half-size, pixels (differential:
         the search that re-acquires a coasting track).
     anchor_dissimilarity : (search) the anchor's match is trusted at most at this dissimilarity;
@@ -150,6 +154,7 @@ class TrackerSettings:
     min_distance_px: float = 10.0
     redetect: bool = False
     redetect_every: int = 5
+    reattach_frames: int = 0
     max_search_radius: int = 40
     anchor_dissimilarity: float | None = None
     anchor_patience: int = 4
@@ -180,8 +185,12 @@ class TrackerSettings:
             gate_radius_for_probability(self.gate_probability, "gate_probability")  # raises outside (0, 1)
         if self.max_misses is not None:
             object.__setattr__(self, "max_misses", check_count("max_misses", self.max_misses, 0))
-        for name, minimum in (("max_features", 1), ("redetect_every", 1), ("anchor_patience", 1), ("max_pyramid_level", 0)):
+        for name, minimum in (("max_features", 1), ("redetect_every", 1), ("anchor_patience", 1), ("max_pyramid_level", 0),
+                              ("reattach_frames", 0)):
             object.__setattr__(self, name, check_count(name, getattr(self, name), minimum))
+        if self.reattach_frames and not self.redetect:
+            raise InvalidInputError(f"reattach_frames ({self.reattach_frames}) needs redetect: lost tracks are found "
+                                    "again among the corners a redetection finds", fields=("reattach_frames", "redetect"))
         if check_count("max_search_radius", self.max_search_radius, 0) < 2:
             raise InvalidInputError(f"max_search_radius must be >= 2; got {self.max_search_radius}")
         for name in ("quality_level", "min_distance_px", "max_innovation_ratio", "forward_backward_px"):

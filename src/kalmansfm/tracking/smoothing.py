@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..estimation.models import LinearGaussianModel, constant_velocity_2d
 from ..estimation.smoothing import FilterRun, smooth
-from .tracks import PREDICTED, Tracks
+from .tracks import INITIALISING, PREDICTED, Tracks
 
 __all__ = ["smooth_tracks"]
 
@@ -64,6 +64,28 @@ def _chains(tracks: Tracks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             f"measured or predicted (status 4, 1 or 2) on every frame of its life"
         )
     return start, last, has_chain
+
+
+def _restarted_chains(tracks: Tracks) -> tuple[np.ndarray, np.ndarray] | None:
+    """Tracks with more than one filter chain — lost, then found again and restarted (initialising) under their
+    id — as one column per chain: (original column of each, (frames, chains) frames of each); None if none.
+
+    A later chain that does not restart (a gap inside a track) is left to :func:`_chains`, which refuses it.
+    """
+    alive = tracks.alive
+    begins = alive & ~np.vstack([np.zeros((1, alive.shape[1]), bool), alive[:-1]])
+    count = begins.sum(axis=0)
+    if not (count > 1).any():
+        return None
+    label = np.cumsum(begins, axis=0)  # chain number of each frame, 0 before the first
+    later = begins & (label > 1)
+    if (tracks.status[later] != INITIALISING).any():
+        return None
+    per_column = np.maximum(count, 1)
+    columns = np.repeat(np.arange(alive.shape[1]), per_column)
+    chain = np.arange(columns.size) - np.repeat(np.cumsum(per_column) - per_column, per_column) + 1
+    inside = (label[:, columns] == chain[None, :]) | (count[columns] <= 1)[None, :]
+    return columns, inside
 
 
 def _check_chain_values(tracks: Tracks, in_chain: np.ndarray) -> None:
@@ -207,6 +229,22 @@ def smooth_tracks(tracks: Tracks, *, model: LinearGaussianModel | None = None, l
         model = tracks.settings.model if tracks.settings is not None else constant_velocity_2d()
     if model.F.shape != (4, 4) or model.Q.shape != (4, 4):
         raise InvalidInputError(f"model must have a 4-state F and Q; got F {model.F.shape}, Q {model.Q.shape}")
+    restarted = _restarted_chains(tracks)
+    if restarted is not None:  # tracks found again after a loss: each chain smoothed on its own
+        columns, inside = restarted
+        f, j = np.nonzero(inside)
+        virtual = Tracks(positions=np.where(inside[..., None], tracks.positions[:, columns], np.nan),
+                         status=np.where(inside, tracks.status[:, columns], 0),
+                         track_ids=np.arange(len(columns)),
+                         states=np.where(inside[..., None], tracks.states[:, columns], np.nan),
+                         covariances=np.where(inside[..., None, None], tracks.covariances[:, columns], np.nan),
+                         settings=tracks.settings)
+        done = smooth_tracks(virtual, model=model, lag=lag)
+        positions, states, covariances = tracks.positions.copy(), tracks.states.copy(), tracks.covariances.copy()
+        positions[f, columns[j]] = done.positions[f, j]
+        states[f, columns[j]] = done.states[f, j]
+        covariances[f, columns[j]] = done.covariances[f, j]
+        return tracks.replace(positions=positions, states=states, covariances=covariances, smoothed=done.smoothed)
     start, last, has_chain = _chains(tracks)
     frames = np.arange(tracks.n_frames)[:, None]
     in_chain = (frames >= start) & (frames <= last) & has_chain

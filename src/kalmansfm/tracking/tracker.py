@@ -39,6 +39,7 @@ from ._rows import FrameRecord, Rows, StepOutcome, concatenate_records
 from ._search_step import SearchMatcher
 from .detect import detect_corners
 from .grey import colour_to_grey
+from .reattach import DESCRIPTOR_SIZE, LostTracks, describe, match_lost
 from .settings import TrackerSettings
 from .smoothing import smooth_tracks
 from .tracks import INITIALISING, LOST, MEASURED, PREDICTED, Tracks
@@ -145,6 +146,10 @@ class Tracker:
         self._pending_ids = np.zeros(0, np.int64)
         self._pending_positions = np.zeros((0, 2))
         self._pending_templates = np.zeros((0, self.window, self.window), self._matcher.template_dtype)
+        # Re-attachment: recently lost tracks, and each live track's descriptor at its last keyframe.
+        self._lost = LostTracks.empty(self.window)
+        self._described_ids = np.zeros(0, np.int64)
+        self._descriptors = np.zeros((0, DESCRIPTOR_SIZE), np.float32)
 
     # -- validation -------------------------------------------------------------
     @staticmethod
@@ -240,13 +245,51 @@ class Tracker:
         record = concatenate_records(records)
         if self.settings.redetect and self._frame_index % self.settings.redetect_every == 0:
             new = self._detect_new(frame.image)
+            measured = record.status == MEASURED
+            described = np.zeros((0, DESCRIPTOR_SIZE), np.float32)
+            if self.settings.reattach_frames:  # the new corners and the measured tracks, on one image pyramid
+                described = describe(frame.image, np.concatenate([new, record.states[measured, :2]]), self.window)
+                self._remember_descriptors(record.ids[measured], described[len(new):])
             if len(new):
-                ids = np.arange(self._next_id, self._next_id + len(new), dtype=np.int64)
-                self._next_id += len(new)
+                ids = self._ids_for(frame, new, described[:len(new)])
                 self._start_pending(frame, new, ids)
                 record = concatenate_records([record, self._pending_record()])
         self._records.append(record)
         self._matcher.remember(frame)
+
+    def _ids_for(self, frame: Any, corners: np.ndarray, descriptors: np.ndarray) -> np.ndarray:
+        """Ids of redetected corners: a lost track's own where it is found again (re-attachment), else new ones."""
+        ids = np.full(len(corners), -1, np.int64)
+        if self.settings.reattach_frames:
+            lost = self._lost
+            lost.keep(lost.frames >= self._frame_index - self.settings.reattach_frames)
+            corner, track = match_lost(lost, self._frame_index, corners, descriptors,
+                                       self._matcher.cut_templates(frame, corners), self.model, self.gate_radius,
+                                       self.settings.reacquire_ncc)
+            ids[corner] = lost.ids[track]
+            kept = np.ones(len(lost.ids), bool)
+            kept[track] = False
+            lost.keep(kept)
+        fresh = ids < 0
+        ids[fresh] = np.arange(self._next_id, self._next_id + int(fresh.sum()), dtype=np.int64)
+        self._next_id += int(fresh.sum())
+        return ids
+
+    def _remember_descriptors(self, ids: np.ndarray, descriptors: np.ndarray) -> None:
+        """Keyframe: the descriptors of the tracks measured in it (older ones kept for the live tracks not)."""
+        live = np.isin(self._described_ids, self._rows.ids) & ~np.isin(self._described_ids, ids)
+        self._described_ids = np.concatenate([self._described_ids[live], ids])
+        self._descriptors = np.concatenate([self._descriptors[live], descriptors])
+
+    def _remember_lost(self, ids: np.ndarray, states: np.ndarray, covariances: np.ndarray, templates: np.ndarray
+                       ) -> None:
+        """Tracks lost in this frame, kept for re-attachment with their last keyframe's descriptor."""
+        same = self._described_ids[:, None] == ids[None, :]  # (described, lost): a few hundred by a few
+        known = same.any(axis=0)
+        descriptors = np.full((len(ids), DESCRIPTOR_SIZE), np.nan, np.float32)
+        if known.any():
+            descriptors[known] = self._descriptors[np.argmax(same[:, known], axis=0)]
+        self._lost.add(ids, self._frame_index, states, covariances, descriptors, templates)
 
     def _live(self) -> np.ndarray:
         """Rows of the filter that are tracks (not retired)."""
@@ -317,6 +360,9 @@ class Tracker:
             lost &= ~rows.retired
             shown = np.flatnonzero(~rows.retired)
             states, covariances = kf.x[shown], np.broadcast_to(kf.P, (len(rows), 4, 4))[shown]
+        if self.settings.reattach_frames and lost.any():
+            self._remember_lost(rows.ids[lost], np.array(kf.x)[lost], np.broadcast_to(kf.P, (len(rows), 4, 4))[lost],
+                                rows.templates[lost])
         states[lost[shown]] = np.nan
         covariances[lost[shown]] = np.nan
         record = FrameRecord(rows.ids[shown].copy(), states, covariances, status[shown], np.asarray(scores)[shown])

@@ -47,9 +47,10 @@ def test_fusing_per_observation_in_blocks_gives_the_dense_result(small_blocks, m
     assert sorted(np.concatenate([b.points for b in made]).tolist()) == list(range(obs.shape[1]))
     dense = fuse(obs, scene.cameras, method=method, history=True)
     split = fuse(sparse, scene.cameras, method=method, history=True)
-    # recursive: the same transitions point by point; batch: Gauss-Newton iterates a chunk until all its points
-    # converge, so another grouping stops each point within the iteration's tolerance instead
-    tol = {"rtol": 1e-9, "atol": 1e-12} if method == "recursive" else {"rtol": 1e-5, "atol": 1e-5}
+    # recursive: the same transitions point by point (to the rounding of products over fewer views); batch:
+    # Gauss-Newton iterates a chunk until all its points converge, so another grouping stops each point within
+    # the iteration's tolerance instead
+    tol = {"rtol": 1e-7, "atol": 1e-9} if method == "recursive" else {"rtol": 1e-5, "atol": 1e-5}
     assert np.array_equal(split.point_status, dense.point_status)
     assert split.noise.std == pytest.approx(dense.noise.std, rel=tol["rtol"])
     np.testing.assert_allclose(split.points, dense.points, **tol)
@@ -74,7 +75,7 @@ def test_a_known_sigma_fuses_each_block_alone(small_blocks):
     dense = fuse(obs, scene.cameras, pixel_std=0.5)
     split = fuse(_sparse(obs), scene.cameras, pixel_std=0.5)
     assert np.array_equal(split.point_status, dense.point_status)
-    np.testing.assert_allclose(split.points, dense.points, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(split.points, dense.points, rtol=1e-7, atol=1e-9)
     ok = split.reconstructed
     assert ok.sum() > 500
     err = split.points[ok] - scene.points[ok]
