@@ -119,6 +119,9 @@ def read_reconstruction(path: str | os.PathLike[str]) -> Reconstruction:
         noise = meta["noise"]
         shape = tuple(int(v) for v in data["obs_shape"])
         per_observation = np.asarray(data["obs_std"], dtype=np.float64) if "obs_std" in data else None
+        if per_observation is not None and per_observation.shape != np.shape(data["obs_frame"]):
+            raise ValueError(f"obs_std holds {per_observation.size} values for {np.size(data['obs_frame'])} "
+                             "observations")
         noise = NoiseEstimate(**{**noise, "parameters": tuple(tuple(p) for p in noise.get("parameters", ()))},
                               observation_std=per_observation)
         observations = Observations.from_sparse(shape, data["obs_frame"], data["obs_point"], data["obs_xy"],
