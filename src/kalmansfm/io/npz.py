@@ -12,7 +12,31 @@ import numpy as np
 from ..errors import InvalidInputError
 from ._csv import where
 
-__all__ = ["load_npz"]
+__all__ = ["load_npz", "save_npz"]
+
+
+#: zlib level of the archives kalmansfm writes: level 1 compresses float arrays nearly as well as numpy's
+#: default (level 6) in a third of the time.
+NPZ_COMPRESSION_LEVEL = 1
+
+
+def save_npz(handle: object, arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` as a compressed ``.npz`` (what :func:`numpy.load` reads) to an open binary ``handle``.
+
+    Examples
+    --------
+    >>> import io
+    >>> buffer = io.BytesIO()
+    >>> save_npz(buffer, {"x": np.arange(3)})
+    >>> _ = buffer.seek(0)
+    >>> np.load(buffer)["x"].tolist()
+    [0, 1, 2]
+    """
+    with zipfile.ZipFile(handle, "w", compression=zipfile.ZIP_DEFLATED,  # type: ignore[arg-type]
+                         compresslevel=NPZ_COMPRESSION_LEVEL) as archive:
+        for name, value in arrays.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def load_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:

@@ -35,7 +35,7 @@ from ..structure.reconstruction import (
 from ._csv import where
 from .atomic import atomic_write
 from .colmap import SKEW_FILE, ColmapModel, build_colmap_model
-from .npz import load_npz
+from .npz import load_npz, save_npz
 
 __all__ = [
     "RECONSTRUCTION_FILE",
@@ -97,7 +97,7 @@ def write_reconstruction(rec: Reconstruction, path: str | os.PathLike[str], *, i
         arrays["obs_std"] = np.asarray(rec.noise.observation_std)
     arrays["meta"] = np.frombuffer(json.dumps(meta, allow_nan=True).encode("utf-8"), dtype=np.uint8)
     buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)
+    save_npz(buffer, arrays)
     path = Path(path)
     data = buffer.getvalue()
     atomic_write(path, lambda tmp: tmp.write_bytes(data))

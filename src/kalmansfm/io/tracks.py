@@ -51,7 +51,7 @@ from ..tracking.tracks import (
     TrackStatus,
 )
 from ._csv import csv_text, number, read_rows, where
-from .npz import load_npz
+from .npz import load_npz, save_npz
 from .records import from_json, to_json
 
 __all__ = [
@@ -215,7 +215,7 @@ def write_tracks_npz(tracks: Tracks, path: str | os.PathLike[str]) -> Path:
     meta = {"schema_version": _NPZ_SCHEMA, "settings": to_json(tracks.settings), "smoothed": tracks.smoothed}
     arrays["meta"] = np.array(json.dumps(meta))
     with open(path, "wb") as handle:
-        np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]
+        save_npz(handle, arrays)
     return path
 
 
