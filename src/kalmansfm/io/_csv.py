@@ -265,3 +265,47 @@ def read_rows(path: str | os.PathLike[str], expected: str | None = None, *,
     if not rows and not allow_no_rows:
         raise InvalidInputError(f"{where(file, header_line)}: no rows after the header")
     return CsvRows(header, header_line, rows)
+
+
+# --- columns of numbers ---------------------------------------------------------------------------
+
+#: Frame numbers and track ids index dense arrays: larger numbers are refused (they would need absurd memory).
+MAX_INDEX = 10_000_000
+#: Image coordinates beyond ± this many pixels are refused: no camera has such images, and their
+#: squares (1e300² overflows) would break the factorization's arithmetic.
+MAX_COORDINATE_PX = 1e7
+
+
+def index_column(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np.ndarray:
+    """Integers in 0 … MAX_INDEX of one column (its cells as written, ``lines`` their file lines), or one line naming the cell."""
+    out = np.empty(len(values), dtype=np.int64)
+    for i, text in enumerate(values):
+        try:
+            number = float(text)
+        except ValueError:
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be an integer; got {text!r}") from None
+        if not np.isfinite(number) or number != int(number):
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be an integer; got {text!r}")
+        if not 0 <= number <= MAX_INDEX:
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be in 0 … {MAX_INDEX}; got {text.strip()}")
+        out[i] = int(number)
+    return out
+
+
+def number_column(file: Path, values: np.ndarray, lines: np.ndarray, name: str, *, finite: bool = True) -> np.ndarray:
+    """Numbers of one column; empty cells are NaN, refused when ``finite`` (so are magnitudes beyond MAX_COORDINATE_PX)."""
+    out = np.empty(len(values))
+    for i, text in enumerate(values):
+        try:
+            out[i] = float(text) if (text.strip() or finite) else np.nan
+        except ValueError:
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be a number; got {text!r}") from None
+        if finite and not np.isfinite(out[i]):
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be finite; got {text.strip()!r}")
+        if finite and abs(out[i]) > MAX_COORDINATE_PX:
+            raise InvalidInputError(
+                f"{where(file, lines[i])}: {name} must be within ±{MAX_COORDINATE_PX:g} px; got {text.strip()!r}"
+            )
+        if not finite and np.isinf(out[i]):
+            raise InvalidInputError(f"{where(file, lines[i])}: {name} must not be infinite; got {text.strip()!r}")
+    return out

@@ -54,10 +54,10 @@ from ..structure.geometry.camera_checks import (
 )
 from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices
 from ..structure.reconstruction import Observations
-from ._csv import csv_text, number, read_rows, where
+from ._csv import csv_text, index_column, number, read_rows, where
 from .colmap import MODEL_PARTS, locate_colmap_model, read_colmap_model, read_skew
 from .frames import natural_key
-from .tracks import TrackObservations, _indices
+from .tracks import TrackObservations
 
 __all__ = [
     "MATRIX_COLUMNS",
@@ -216,7 +216,7 @@ def _csv_cameras(file: Path) -> KnownCameras:
     layout = MATRIX_COLUMNS if all(c in column for c in MATRIX_COLUMNS) else POSE_COLUMNS
     table = np.array([row for _, row in rows], dtype=object)
     lines = np.array([n for n, _ in rows])
-    frames = _indices(file, table[:, column["frame"]], lines, "frame")
+    frames = index_column(file, table[:, column["frame"]], lines, "frame")
     values = np.stack([_column(file, table[:, column[c]], lines, c) for c in layout[1:]], axis=1)
     _, first, counts = np.unique(frames, return_index=True, return_counts=True)
     if np.any(counts > 1):

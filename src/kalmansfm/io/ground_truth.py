@@ -28,9 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ._csv import csv_text, number, read_rows, where
+from ._csv import MAX_INDEX, csv_text, number, read_rows, where
 from .structure import structure_csv
-from .tracks import MAX_INDEX
 
 __all__ = ["GroundTruth", "ground_truth_files", "read_ground_truth", "read_ground_truth_tracks", "GROUND_TRUTH_FILES"]
 

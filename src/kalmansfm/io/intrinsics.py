@@ -29,10 +29,9 @@ from .._validation import check_positive
 from ..errors import InvalidInputError
 from ..structure.geometry.camera_checks import intrinsics_problem
 from ..structure.geometry.pinhole import intrinsic_matrices
-from ._csv import number, read_rows, where
+from ._csv import index_column, number, number_column, read_rows, where
 from .cameras import MAX_CAMERAS_BYTES, is_colmap_path, match_image_names
 from .colmap import locate_colmap_model, read_colmap_cameras, read_colmap_model
-from .tracks import _floats, _indices
 
 __all__ = ["INTRINSICS_COLUMNS", "intrinsics_csv", "intrinsics_from_focal", "read_intrinsics"]
 
@@ -82,8 +81,8 @@ def read_intrinsics(path: str | os.PathLike[str], frames: object,
     lines = np.array([n for n, _ in rows])
     index = {name: i for i, name in enumerate(header)}
     column = {c: np.array([r[index[c]] for _, r in rows], dtype=object) for c in INTRINSICS_COLUMNS if c in index}
-    fx, fy, cx, cy = (_floats(file, column[c], lines, c) for c in REQUIRED_COLUMNS)
-    skew = _floats(file, column["skew"], lines, "skew") if "skew" in column else np.zeros(len(rows))
+    fx, fy, cx, cy = (number_column(file, column[c], lines, c) for c in REQUIRED_COLUMNS)
+    skew = number_column(file, column["skew"], lines, "skew") if "skew" in column else np.zeros(len(rows))
     bad = ~((fx > 0) & (fy > 0))
     if bad.any():
         i = int(np.argmax(bad))
@@ -98,7 +97,7 @@ def read_intrinsics(path: str | os.PathLike[str], frames: object,
     if "frame" not in column:
         raise InvalidInputError(f"{where(file, header_line)}: {len(rows)} rows need a frame column to say which frame "
                                 f"each is for (one row without it serves every frame)")
-    given = _indices(file, column["frame"], lines, "frame")
+    given = index_column(file, column["frame"], lines, "frame")
     order = np.argsort(given, kind="stable")
     sorted_frames = given[order]
     twice = np.flatnonzero(np.diff(sorted_frames) == 0)

@@ -50,7 +50,7 @@ from ..tracking.tracks import (
     Tracks,
     TrackStatus,
 )
-from ._csv import csv_text, number, read_rows, where
+from ._csv import MAX_COORDINATE_PX, MAX_INDEX, csv_text, index_column, number, number_column, read_rows, where
 from .npz import load_npz, save_npz
 from .records import from_json, to_json
 
@@ -73,11 +73,6 @@ __all__ = [
     "write_tracks_npz",
 ]
 
-#: Frame numbers and track ids index dense arrays: larger numbers are refused (they would need absurd memory).
-MAX_INDEX = 10_000_000
-#: Image coordinates beyond ± this many pixels are refused: no camera has such images, and their
-#: squares (1e300² overflows) would break the factorization's arithmetic.
-MAX_COORDINATE_PX = 1e7
 #: The columns of the tracker's ``tracks.csv``.
 TRACK_CSV_COLUMNS = ("frame", "track_id", "x", "y", "vx", "vy", "std_x", "std_y", "status")
 #: The least a tracks CSV holds: one measured position per row (what other tools and converters write).
@@ -348,16 +343,16 @@ def _read_csv_rows(file: Path) -> _CsvRows:
         status = np.array([known[w] for w in words], dtype=np.int8)
     else:
         status = np.full(len(rows), int(TrackStatus.MEASURED), dtype=np.int8)
-    frame = _indices(file, table[:, column["frame"]], lines, "frame")
-    track = _indices(file, table[:, column["track_id"]], lines, "track_id")
+    frame = index_column(file, table[:, column["frame"]], lines, "frame")
+    track = index_column(file, table[:, column["track_id"]], lines, "track_id")
     positioned = status != LOST
-    xy = np.stack([_floats(file, table[positioned, column[c]], lines[positioned], c) for c in ("x", "y")], axis=1)
+    xy = np.stack([number_column(file, table[positioned, column[c]], lines[positioned], c) for c in ("x", "y")], axis=1)
     velocity = std = None
     if "vx" in column and "vy" in column:
-        velocity = np.stack([_floats(file, table[positioned, column[c]], lines[positioned], c, finite=False)
+        velocity = np.stack([number_column(file, table[positioned, column[c]], lines[positioned], c, finite=False)
                              for c in ("vx", "vy")], axis=1)
     if "std_x" in column and "std_y" in column:
-        std = np.stack([_floats(file, table[positioned, column[c]], lines[positioned], c, finite=False)
+        std = np.stack([number_column(file, table[positioned, column[c]], lines[positioned], c, finite=False)
                         for c in ("std_x", "std_y")], axis=1)
         measured_rows = np.isin(status[positioned], MEASUREMENT_CODES)
         bad = measured_rows & ~(std > 0).all(axis=1)
@@ -471,40 +466,6 @@ def read_track_observations(path: str | os.PathLike[str]) -> TrackObservations:
     order = np.lexsort((rows.track[measured], rows.frame[measured]))
     return TrackObservations(rows.frames, rows.track_ids, rows.frame[measured][order], rows.track[measured][order],
                              xy[measured][order])
-
-
-def _indices(file: Path, values: np.ndarray, lines: np.ndarray, name: str) -> np.ndarray:
-    out = np.empty(len(values), dtype=np.int64)
-    for i, text in enumerate(values):
-        try:
-            number = float(text)
-        except ValueError:
-            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be an integer; got {text!r}") from None
-        if not np.isfinite(number) or number != int(number):
-            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be an integer; got {text!r}")
-        if not 0 <= number <= MAX_INDEX:
-            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be in 0 … {MAX_INDEX}; got {text.strip()}")
-        out[i] = int(number)
-    return out
-
-
-def _floats(file: Path, values: np.ndarray, lines: np.ndarray, name: str, *, finite: bool = True) -> np.ndarray:
-    """Numbers of one column; empty cells are NaN, refused when ``finite`` (so are magnitudes beyond MAX_COORDINATE_PX)."""
-    out = np.empty(len(values))
-    for i, text in enumerate(values):
-        try:
-            out[i] = float(text) if (text.strip() or finite) else np.nan
-        except ValueError:
-            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be a number; got {text!r}") from None
-        if finite and not np.isfinite(out[i]):
-            raise InvalidInputError(f"{where(file, lines[i])}: {name} must be finite; got {text.strip()!r}")
-        if finite and abs(out[i]) > MAX_COORDINATE_PX:
-            raise InvalidInputError(
-                f"{where(file, lines[i])}: {name} must be within ±{MAX_COORDINATE_PX:g} px; got {text.strip()!r}"
-            )
-        if not finite and np.isinf(out[i]):
-            raise InvalidInputError(f"{where(file, lines[i])}: {name} must not be infinite; got {text.strip()!r}")
-    return out
 
 
 def _real(file: Path, arrays: dict[str, np.ndarray], name: str, shape: tuple[int, ...]) -> np.ndarray | None:
