@@ -27,17 +27,18 @@ final tracks and over the reconstruction's inliers.
 from __future__ import annotations
 
 import argparse
-from contextlib import ExitStack
 import os
 import shutil
 import tempfile
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from kalmansfm.io.frames import FrameSource, list_image_files
+from kalmansfm.io.middlebury import read_middlebury_cameras
 from kalmansfm.mapping import MappingSettings, reconstruct_images
 from kalmansfm.structure import CameraSet, align_similarity, fuse
 
@@ -69,14 +70,14 @@ class Dataset:
 def load(name: str, data: Path = DATA) -> Dataset:
     folder_name, prefix, subset = SETS[name]
     folder = data / folder_name
-    rows = [line.split() for line in (folder / f"{prefix}_par.txt").read_text().splitlines()[1:] if line.strip()]
-    by_name = {r[0]: np.array(r[1:], float) for r in rows}
+    cams = read_middlebury_cameras(folder / f"{prefix}_par.txt")
+    index = {image: k for k, image in enumerate(cams.names)}
     files = list_image_files(folder / "images")
     if subset is not None:
         files = [files[k] for k in subset]
-    values = np.stack([by_name[f.name] for f in files])
-    u, _, vt = np.linalg.svd(values[:, 9:18].reshape(-1, 3, 3))
-    return Dataset(name, folder, files, values[:, :9].reshape(-1, 3, 3), u @ vt, values[:, 18:21])
+    rows = [index[f.name] for f in files]
+    u, _, vt = np.linalg.svd(cams.rotations[rows])  # dinoRing's R are orthonormal to 1.6e-6 only
+    return Dataset(name, folder, files, cams.intrinsics[rows], u @ vt, cams.translations[rows])
 
 
 def ring_radius(centres: np.ndarray) -> float:

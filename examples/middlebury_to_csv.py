@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from kalmansfm.errors import InvalidInputError
 from kalmansfm.io.cameras import pose_cameras_csv
-from kalmansfm.io.frames import natural_key
 from kalmansfm.io.intrinsics import intrinsics_csv
+from kalmansfm.io.middlebury import read_middlebury_cameras
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,15 +36,17 @@ def main(argv: list[str] | None = None) -> int:
     if len(found) != 1:
         print(f"error: {args.folder}: expected one *_par.txt, found {len(found)}", file=sys.stderr)
         return 2
-    rows = [line.split() for line in found[0].read_text().splitlines()[1:] if line.strip()]
-    rows.sort(key=lambda row: natural_key(row[0]))  # as reconstruct numbers a folder's images
-    values = np.array([[float(v) for v in row[1:22]] for row in rows])
-    frames = np.arange(len(rows))
-    K, R, t = values[:, :9].reshape(-1, 3, 3), values[:, 9:18].reshape(-1, 3, 3), values[:, 18:21]
+    try:
+        cams = read_middlebury_cameras(found[0])  # in natural order of the names, as reconstruct reads a folder
+    except InvalidInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    frames = np.arange(len(cams.names))
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "K.csv").write_text(intrinsics_csv(frames, K), encoding="utf-8")
-    (args.out / "cameras.csv").write_text(pose_cameras_csv(frames, K, R, t), encoding="utf-8")
-    print(f"{args.out / 'K.csv'}, {args.out / 'cameras.csv'}: {len(rows)} images")
+    (args.out / "K.csv").write_text(intrinsics_csv(frames, cams.intrinsics), encoding="utf-8")
+    (args.out / "cameras.csv").write_text(pose_cameras_csv(frames, cams.intrinsics, cams.rotations, cams.translations),
+                                          encoding="utf-8")
+    print(f"{args.out / 'K.csv'}, {args.out / 'cameras.csv'}: {len(cams.names)} images")
     return 0
 
 
