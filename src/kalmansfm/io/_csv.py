@@ -6,7 +6,7 @@ import csv
 import os
 import re
 import stat
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -34,9 +34,31 @@ def csv_text(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
     >>> csv_text(["a", "b"], [[1, "x"]])
     'a,b\\n1,x\\n'
     """
-    lines = [",".join(header)]
-    lines.extend(",".join(str(v) for v in row) for row in rows)
-    return "\n".join(lines) + "\n"
+    return "".join(csv_chunks(header, rows))
+
+
+#: Rows joined into one piece of text at a time by :func:`csv_chunks`.
+CSV_CHUNK_ROWS = 65_536
+
+
+def csv_chunks(header: Iterable[str], rows: Iterable[Iterable[object]]) -> Iterator[str]:
+    """:func:`csv_text` in pieces of :data:`CSV_CHUNK_ROWS` lines, to be written as they come (a large table
+    is never held as one text).
+
+    Examples
+    --------
+    >>> list(csv_chunks(["a"], [[1], [2]]))
+    ['a\\n', '1\\n2\\n']
+    """
+    yield ",".join(header) + "\n"
+    piece: list[str] = []
+    for row in rows:
+        piece.append(",".join(str(v) for v in row))
+        if len(piece) == CSV_CHUNK_ROWS:
+            yield "\n".join(piece) + "\n"
+            piece = []
+    if piece:
+        yield "\n".join(piece) + "\n"
 
 
 # --- reading ------------------------------------------------------------------------------------

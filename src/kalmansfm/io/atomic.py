@@ -408,6 +408,13 @@ class OutputDirectory:
         self.file(name).write_text(text, encoding="utf-8", errors="backslashreplace")
         return self.path / name
 
+    def write_chunks(self, name: str, chunks: Iterable[str]) -> Path:
+        """Stage a UTF-8 text file from pieces written as they come (a large table never held whole)."""
+        with open(self.file(name), "w", encoding="utf-8", errors="backslashreplace") as handle:
+            for chunk in chunks:
+                handle.write(chunk)
+        return self.path / name
+
     def write_bytes(self, name: str, data: bytes) -> Path:
         """Stage a binary file; returns its final path."""
         self.file(name).write_bytes(data)

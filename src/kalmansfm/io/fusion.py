@@ -11,29 +11,33 @@ is none).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from ..structure.reconstruction import Reconstruction
-from ._csv import csv_text, number
+from ._csv import csv_chunks, csv_text, number
 from .structure import COVARIANCE_COLUMNS
 
-__all__ = ["HISTORY_COLUMNS", "REJECTED_COLUMNS", "history_csv", "rejected_csv"]
+__all__ = ["HISTORY_COLUMNS", "REJECTED_COLUMNS", "history_csv_chunks", "rejected_csv"]
 
 HISTORY_COLUMNS = ("view", "track_id", "X", "Y", "Z", *COVARIANCE_COLUMNS)
 REJECTED_COLUMNS = ("frame", "track_id", "x", "y", "residual_px")
 _UPPER = np.triu_indices(3)
 
 
-def history_csv(reconstruction: Reconstruction) -> str:
-    """``history.csv`` of a fusion run with ``history=True`` (rows by view, then track)."""
+def history_csv_chunks(reconstruction: Reconstruction) -> Iterator[str]:
+    """``history.csv`` of a fusion run with ``history=True`` (rows by view, then track), in pieces to be written as
+    they come (a long run's history is large)."""
     h = getattr(reconstruction.details, "history", None)
     if h is None:
         raise ValueError("the fusion was run without history")
     cov = h.covariances[:, _UPPER[0], _UPPER[1]]
-    frame_of = reconstruction.frame_ids[h.views].tolist()
-    track_of = reconstruction.track_ids[h.points].tolist()
-    rows = ([f, t, *map(number, (*x, *c))] for f, t, x, c in zip(frame_of, track_of, h.estimates, cov))
-    return csv_text(HISTORY_COLUMNS, rows)
+    frame_of = reconstruction.frame_ids[h.views]
+    track_of = reconstruction.track_ids[h.points]
+    rows = ([f, t, *map(number, (*x, *c))] for f, t, x, c in zip(frame_of.tolist(), track_of.tolist(),
+                                                                 h.estimates, cov))
+    return csv_chunks(HISTORY_COLUMNS, rows)
 
 
 def rejected_csv(reconstruction: Reconstruction) -> str:

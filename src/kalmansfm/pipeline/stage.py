@@ -17,7 +17,7 @@ import numpy as np
 
 from ..io.atomic import OutputDirectory
 from ..io.cameras import cameras_csv, pose_cameras_csv
-from ..io.fusion import history_csv, rejected_csv
+from ..io.fusion import history_csv_chunks, rejected_csv
 from ..io.reconstruction import RECONSTRUCTION_FILE, write_reconstruction
 from ..io.structure import motion_csv, structure_csv, structure_ply
 from ..io.summary import SUMMARY_FILE, RunSummary, summary_json
@@ -157,7 +157,7 @@ def stage_reconstruction(out: OutputDirectory, rec: Reconstruction, *, comment: 
             names.append("reconstruction.png")
     history = getattr(rec.details, "history", None)
     if history is not None:
-        out.write_text("history.csv", history_csv(rec))
+        out.write_chunks("history.csv", history_csv_chunks(rec))
         names.append("history.csv")
     if rec.kind == "fusion":
         out.write_text("rejected.csv", rejected_csv(rec))
