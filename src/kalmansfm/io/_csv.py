@@ -6,7 +6,7 @@ import csv
 import os
 import re
 import stat
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -34,31 +34,16 @@ def csv_text(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
     >>> csv_text(["a", "b"], [[1, "x"]])
     'a,b\\n1,x\\n'
     """
-    return "".join(csv_chunks(header, rows))
+    lines = [",".join(header)]
+    lines.extend(",".join(str(v) for v in row) for row in rows)
+    return "\n".join(lines) + "\n"
 
 
-#: Rows joined into one piece of text at a time by :func:`csv_chunks`.
+#: A field that ``%r`` or ``%f`` formatting wrote for a number that is not finite; writers blank it (no value).
+NOT_FINITE_FIELD = re.compile(r"(?<=,)-?(?:nan|inf)(?=[,\n])")
+
+#: Rows a large table's writer formats into one piece of text at a time (``history.csv``).
 CSV_CHUNK_ROWS = 65_536
-
-
-def csv_chunks(header: Iterable[str], rows: Iterable[Iterable[object]]) -> Iterator[str]:
-    """:func:`csv_text` in pieces of :data:`CSV_CHUNK_ROWS` lines, to be written as they come (a large table
-    is never held as one text).
-
-    Examples
-    --------
-    >>> list(csv_chunks(["a"], [[1], [2]]))
-    ['a\\n', '1\\n2\\n']
-    """
-    yield ",".join(header) + "\n"
-    piece: list[str] = []
-    for row in rows:
-        piece.append(",".join(str(v) for v in row))
-        if len(piece) == CSV_CHUNK_ROWS:
-            yield "\n".join(piece) + "\n"
-            piece = []
-    if piece:
-        yield "\n".join(piece) + "\n"
 
 
 # --- reading ------------------------------------------------------------------------------------

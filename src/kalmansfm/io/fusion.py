@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from ..structure.reconstruction import Reconstruction
-from ._csv import csv_chunks, csv_text, number
+from ._csv import CSV_CHUNK_ROWS, NOT_FINITE_FIELD, csv_text, number
 from .structure import COVARIANCE_COLUMNS
 
 __all__ = ["HISTORY_COLUMNS", "REJECTED_COLUMNS", "history_csv_chunks", "rejected_csv"]
@@ -28,16 +28,33 @@ _UPPER = np.triu_indices(3)
 
 def history_csv_chunks(reconstruction: Reconstruction) -> Iterator[str]:
     """``history.csv`` of a fusion run with ``history=True`` (rows by view, then track), in pieces to be written as
-    they come (a long run's history is large)."""
+    they come (a long run's history is large).
+
+    Numbers as :func:`~kalmansfm.io._csv.number` writes them (``%r``: the shortest text that reads back the same
+    float), empty where not finite, formatted a row at a time.
+
+    Examples
+    --------
+    >>> from kalmansfm.scenes.known_cameras import known_camera_scene
+    >>> from kalmansfm.structure.fusion import fuse
+    >>> s = known_camera_scene(points=3, views=3, seed=0)
+    >>> text = "".join(history_csv_chunks(fuse(s.observations, s.cameras, pixel_std=0.5, history=True)))
+    >>> text.splitlines()[0].split(",")[:5], len(text.splitlines())
+    (['view', 'track_id', 'X', 'Y', 'Z'], 7)
+    """
     h = getattr(reconstruction.details, "history", None)
     if h is None:
         raise ValueError("the fusion was run without history")
     cov = h.covariances[:, _UPPER[0], _UPPER[1]]
     frame_of = reconstruction.frame_ids[h.views]
     track_of = reconstruction.track_ids[h.points]
-    rows = ([f, t, *map(number, (*x, *c))] for f, t, x, c in zip(frame_of.tolist(), track_of.tolist(),
-                                                                 h.estimates, cov))
-    return csv_chunks(HISTORY_COLUMNS, rows)
+    row = "%d,%d," + ",".join(["%r"] * (3 + len(COVARIANCE_COLUMNS))) + "\n"
+    yield ",".join(HISTORY_COLUMNS) + "\n"
+    for start in range(0, len(h), CSV_CHUNK_ROWS):
+        b = slice(start, start + CSV_CHUNK_ROWS)
+        values = np.concatenate([h.estimates[b], cov[b]], axis=1).tolist()
+        text = "".join([row % (f, t, *v) for f, t, v in zip(frame_of[b].tolist(), track_of[b].tolist(), values)])
+        yield NOT_FINITE_FIELD.sub("", text)
 
 
 def rejected_csv(reconstruction: Reconstruction) -> str:

@@ -50,7 +50,7 @@ from ..tracking.tracks import (
     Tracks,
     TrackStatus,
 )
-from ._csv import MAX_COORDINATE_PX, MAX_INDEX, csv_text, index_column, number, number_column, read_rows, where
+from ._csv import MAX_COORDINATE_PX, MAX_INDEX, NOT_FINITE_FIELD, csv_text, index_column, number, number_column, read_rows, where
 from .npz import load_npz, save_npz
 from .records import from_json, to_json
 
@@ -90,7 +90,6 @@ _UPPER4 = np.triu_indices(4)
 
 # A number is written with 6 decimals, trailing zeros and a bare point dropped, empty when not finite; these
 # rewrite a whole text of "%.6f" fields that way at once.
-_NOT_FINITE = re.compile(r"(?<=,)-?(?:nan|inf)(?=[,\n])")
 _TRAILING_ZEROS = re.compile(r"(\.\d*?)0+(?=[,\n])")
 _BARE_POINT = re.compile(r"\.(?=[,\n])")
 
@@ -122,7 +121,7 @@ def tracks_to_csv(tracks: Tracks) -> str:
     # one format per row and three passes over the whole text: a third of the time of formatting each number
     row = "%d,%d," + ",".join(["%.6f"] * values.shape[1]) + ",%s\n"
     text = "".join([row % (f, i, *v, word) for f, i, v, word in zip(frames, ids, values.tolist(), words.tolist())])
-    text = _BARE_POINT.sub("", _TRAILING_ZEROS.sub(r"\1", _NOT_FINITE.sub("", text)))
+    text = _BARE_POINT.sub("", _TRAILING_ZEROS.sub(r"\1", NOT_FINITE_FIELD.sub("", text)))
     return ",".join(TRACK_CSV_COLUMNS) + "\n" + text
 
 
