@@ -41,6 +41,7 @@ from kalmansfm.io.frames import FrameSource, list_image_files
 from kalmansfm.io.middlebury import read_middlebury_cameras
 from kalmansfm.mapping import MappingSettings, reconstruct_images
 from kalmansfm.structure import CameraSet, align_similarity, fuse
+from kalmansfm.structure.geometry.pinhole import camera_centres
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"
@@ -64,7 +65,7 @@ class Dataset:
 
     @property
     def centres(self) -> np.ndarray:
-        return -np.einsum("fji,fj->fi", self.rotations, self.translations)
+        return camera_centres(self.rotations, self.translations)
 
 
 def load(name: str, data: Path = DATA) -> Dataset:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..structure.geometry.pinhole import camera_centres
 from ._csv import MAX_CSV_BYTES, read_file_bytes, where
 from .frames import natural_key
 
@@ -39,7 +40,7 @@ class MiddleburyCameras:
     @property
     def centres(self) -> np.ndarray:
         """(n, 3) camera centres, -Rᵀ t."""
-        return -np.einsum("fji,fj->fi", self.rotations, self.translations)
+        return camera_centres(self.rotations, self.translations)
 
 
 def read_middlebury_cameras(path: str | os.PathLike[str]) -> MiddleburyCameras:

@@ -18,6 +18,7 @@ import numpy as np
 
 from .._validation import check_count, check_positive
 from ..errors import InvalidInputError
+from ..structure.geometry.pinhole import camera_centres
 from ._arc import look_at
 
 __all__ = ["TexturedViews", "textured_views"]
@@ -53,7 +54,7 @@ class TexturedViews:
     @property
     def centres(self) -> np.ndarray:
         """(F, 3) camera centres -Rᵀ t."""
-        return -np.einsum("fji,fj->fi", self.rotations, self.translations)
+        return camera_centres(self.rotations, self.translations)
 
 
 def _texture(rng: np.random.Generator, width: int, height: int) -> np.ndarray:
