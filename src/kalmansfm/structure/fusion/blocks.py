@@ -49,7 +49,13 @@ class Block:
 
 
 def chunks(n: int, size: int) -> list[slice]:
-    """``size`` points at a time (at least one, possibly empty, slice)."""
+    """``size`` points at a time (at least one, possibly empty, slice).
+
+    Examples
+    --------
+    >>> chunks(5, 2), chunks(0, 2)
+    ([slice(0, 2, None), slice(2, 4, None), slice(4, 5, None)], [slice(0, 0, None)])
+    """
     return [slice(s, min(s + size, n)) for s in range(0, n, size)] or [slice(0, 0)]
 
 
@@ -65,6 +71,15 @@ def sparse_blocks(observations: Observations) -> list[Block]:
     Points are ordered by their first and last views and cut where either moves into another
     window of :data:`_BLOCK_VIEWS` views, or where the dense array would pass :data:`_BLOCK_ENTRIES`
     entries; a point without observations falls in the first block.
+
+    Examples
+    --------
+    Two tracks at the start of a 200-view sequence, one at its end: two blocks, each over the
+    views its tracks are seen in.
+
+    >>> obs = Observations.from_sparse((200, 3), [0, 1, 1, 2, 198, 199], [0, 0, 1, 1, 2, 2], np.ones((6, 2)))
+    >>> [(b.views.tolist(), b.points.tolist(), b.observations.shape) for b in sparse_blocks(obs)]
+    [([0, 1, 2], [0, 1], (3, 2, 2)), ([198, 199], [2], (2, 1, 2))]
     """
     frame, point, xy = observations.frame, observations.point, observations.xy
     V, N = observations.shape
