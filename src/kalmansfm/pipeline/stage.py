@@ -96,7 +96,11 @@ def stage_tracking(
         if gif:
             out.write_bytes("tracks.gif", tracks_gif(frames, tracks))
             names.append("tracks.gif")
-        archive.result()
+        try:
+            archive.result()
+        except OSError:
+            out.last_file = "tracks.npz"  # the file that failed, not the last one this thread wrote (a full disk)
+            raise
     return names
 
 
