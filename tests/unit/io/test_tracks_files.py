@@ -209,3 +209,38 @@ def test_observations_are_read_per_observation_where_dense_arrays_would_not_fit(
         read_tracks(csv)
     sparse = read_track_observations(csv)
     assert sparse.frame.size == 20 and np.array_equal(sparse.dense(), dense, equal_nan=True)
+
+
+def test_a_plain_observations_file_reads_the_same_through_numpy_and_its_faults_through_the_general_reader(tmp_path):
+    """The fast parse of a frame,track_id,x,y file of numbers gives what the general reader gives; a file it does not
+    take (comments, a bad cell, a pair twice) goes to the general reader and its one-line message."""
+    from kalmansfm.io import tracks as tracks_module
+    from kalmansfm.io.tracks import read_track_observations
+
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 40, 300)
+    track = rng.integers(0, 90, 300)
+    keep = np.unique(frame * 1000 + track, return_index=True)[1]
+    rows = "".join(f"{f},{t},{x!r},{y!r}\n" for f, t, (x, y) in zip(frame[keep], track[keep],
+                                                                     rng.uniform(-5, 700, (keep.size, 2)).tolist()))
+    plain = tmp_path / "plain.csv"
+    plain.write_text("frame,track_id,x,y\n" + rows)
+    fast = read_track_observations(plain)
+    assert tracks_module._plain_observations(plain) is not None
+    general = read_track_observations(_with_comment(tmp_path, rows))  # the general reader (a comment line)
+    for name in ("frames", "track_ids", "frame", "track", "xy"):
+        assert np.array_equal(getattr(fast, name), getattr(general, name)), name
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,track_id,x,y\n0,1,2.0,3.0\n1,1,2.5,nan\n")
+    with pytest.raises(InvalidInputError, match=r"bad.csv: line 3: y must be finite"):
+        read_track_observations(bad)
+    twice = tmp_path / "twice.csv"
+    twice.write_text("frame,track_id,x,y\n0,1,2.0,3.0\n0,1,2.5,3.5\n")
+    with pytest.raises(InvalidInputError, match=r"twice.csv: lines 2 and 3: frame 0, track_id 1 given twice"):
+        read_track_observations(twice)
+
+
+def _with_comment(folder, rows):
+    path = folder / "commented.csv"
+    path.write_text("frame,track_id,x,y\n# the same rows\n" + rows)
+    return path
