@@ -17,10 +17,12 @@ import numpy as np
 from ..geometry.pinhole import CameraSet, triangulate_points
 from ..reconstruction import Observations
 from .inverse_depth import ViewGeometry, view_geometry
-from .inputs import ORIENTATION_SAMPLE, are_poses
+from .inputs import are_poses
 
 __all__ = ["Block", "dense_block", "orientation_of_blocks", "sparse_blocks"]
 
+# Points used to decide the scene orientation (the sign of the depths most points agree on).
+_ORIENTATION_SAMPLE = 2_000
 # Tracks whose first views lie within the same window of this many views, and their last views too, share a block
 # (then split by size).
 _BLOCK_VIEWS = 32
@@ -127,7 +129,7 @@ def orientation_of_blocks(cams: CameraSet, blocks: list[Block]) -> int:
     # the block with the most points seen in two views or more decides, as all the points would
     counts = [np.isfinite(b.observations[..., 0]).sum(axis=0) >= 2 for b in blocks]
     best = int(np.argmax([c.sum() for c in counts]))
-    sample = np.flatnonzero(counts[best])[:ORIENTATION_SAMPLE]
+    sample = np.flatnonzero(counts[best])[:_ORIENTATION_SAMPLE]
     if sample.size == 0:
         return 1
     block = blocks[best]

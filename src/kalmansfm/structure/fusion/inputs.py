@@ -6,13 +6,11 @@ import numpy as np
 
 from ...errors import InvalidInputError, NotEnoughDataError
 from ..._validation import as_float_array
-from ..geometry.pinhole import CameraSet, triangulate_points
+from ..geometry.pinhole import CameraSet
 from ..reconstruction import Observations
 
-__all__ = ["ORIENTATION_SAMPLE", "are_poses", "scene_orientation_of", "validate_inputs", "validate_sparse_inputs"]
+__all__ = ["are_poses", "validate_inputs", "validate_sparse_inputs"]
 
-# Points used to decide the scene orientation (the sign of the depths most points agree on).
-ORIENTATION_SAMPLE = 2_000
 # |λ - 1| below this for every camera: the cameras are poses K [R | t] (from_pose, K, R, t files).
 _POSE_SCALE_TOLERANCE = 1e-6
 
@@ -54,14 +52,3 @@ def are_poses(cams: CameraSet) -> bool:
     scale and sign does not (a mirrored world frame looks like points behind every camera).
     """
     return bool(np.all(np.abs(cams.decompose().scales - 1.0) <= _POSE_SCALE_TOLERANCE))
-
-
-def scene_orientation_of(cams: CameraSet, obs: np.ndarray) -> int:
-    """+1 for poses (:func:`are_poses`); otherwise the sign of the depths most (linearly triangulated) points agree on."""
-    if are_poses(cams):
-        return 1
-    counts = np.isfinite(obs[..., 0]).sum(axis=0)
-    sample = np.flatnonzero(counts >= 2)[:ORIENTATION_SAMPLE]
-    if sample.size == 0:
-        return 1
-    return triangulate_points(cams, obs[:, sample]).orientation

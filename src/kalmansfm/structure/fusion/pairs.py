@@ -12,7 +12,8 @@ from ..geometry.pinhole import CameraSet, project_points
 from ..geometry.triangulation import triangulate_midpoint
 from ..points import PointStatus
 from .chunks import Chunk, ChunkResult, concat_history, finish
-from .inputs import scene_orientation_of, validate_inputs
+from .blocks import dense_block, orientation_of_blocks
+from .inputs import validate_inputs
 from .inverse_depth import ViewGeometry, view_geometry
 from .settings import check_orientation
 
@@ -117,7 +118,7 @@ def pair_triangulations(observations: object, cameras: CameraSet | object, pixel
     """
     cams, obs = validate_inputs(observations, cameras)
     sigma = check_positive("pixel_std", pixel_std, "pixels")
-    g = view_geometry(cams.matrices, scene_orientation_of(cams, obs) if orientation is None else check_orientation(orientation))
+    g = view_geometry(cams.matrices, orientation_of_blocks(cams, [dense_block(obs)]) if orientation is None else check_orientation(orientation))
     X, C, status, previous = pair_table(g, obs)
     return PairTriangulations(X, C * sigma**2, status, previous)
 
