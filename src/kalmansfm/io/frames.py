@@ -452,8 +452,8 @@ def _copyable(source: Path, frames: list[np.ndarray]) -> bool:
     """A compressed video file, small for its frames (:data:`MAX_COPIED_BITS_PER_PIXEL`)."""
     if source.suffix.lower() not in VIDEO_SUFFIXES or not source.is_file():
         return False
-    pixels = sum(int(np.asarray(f).shape[0]) * int(np.asarray(f).shape[1]) for f in frames)
-    return 8 * source.stat().st_size <= MAX_COPIED_BITS_PER_PIXEL * pixels
+    height, width = np.asarray(frames[0]).shape[:2]  # the frames of one video share a size
+    return 8 * source.stat().st_size <= MAX_COPIED_BITS_PER_PIXEL * len(frames) * height * width
 
 
 def encode_video(frames: list[np.ndarray], fps: int = 25) -> bytes:

@@ -277,9 +277,7 @@ class Observations:
         """(F, P) reprojection error lengths, NaN where there is no observation or no value."""
         if self._residual_values is not None:
             return self._residual_values
-        out = np.full(self.shape, np.nan)
-        out[self.frame, self.point] = self.residual
-        return out
+        return self.grid(self.residual)
 
 
 @dataclass(frozen=True)
