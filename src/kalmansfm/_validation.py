@@ -70,6 +70,21 @@ def check_positive(name: str, value: object, unit: str = "") -> float:
     return number
 
 
+def check_choice(name: str, value: object, choices: tuple[str, ...]) -> None:
+    """Raise unless ``value`` is one of ``choices``: ``NAME must be one of a, b, c; got 'x'``.
+
+    Examples
+    --------
+    >>> check_choice("method", "batch", ("recursive", "batch"))
+    >>> check_choice("method", "ekf", ("recursive", "batch"))
+    Traceback (most recent call last):
+    ...
+    kalmansfm.errors.InvalidInputError: method must be one of recursive, batch; got 'ekf'
+    """
+    if value not in choices:
+        raise InvalidInputError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+
+
 def check_count(name: str, value: object, minimum: int, error: type[Exception] = InvalidInputError) -> int:
     """Return ``value`` as an int or raise ``error`` unless it is an integer >= ``minimum`` (bools refused)."""
     integral = isinstance(value, (int, np.integer)) or (isinstance(value, (float, np.floating)) and float(value).is_integer())

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, special, stats
 
-from .._validation import as_float_array
+from .._validation import as_float_array, check_choice
 from ..errors import InvalidInputError, NotEnoughDataError
 
 __all__ = ["NOISE_MODELS", "GroupScales", "NoiseFit", "SerialCorrelation", "fit_noise_model", "fit_serial_correlation",
@@ -250,8 +250,7 @@ def fit_noise_model(
     >>> bool(abs(fit.outlier_share - 0.05) < 3 * fit.outlier_share_se)
     True
     """
-    if model not in NOISE_MODELS:
-        raise InvalidInputError(f"model must be one of {', '.join(NOISE_MODELS)}; got {model!r}")
+    check_choice("model", model, NOISE_MODELS)
     s = as_float_array("squared_residuals", squared_residuals).ravel()
     if not (np.isfinite(s).all() and (s >= 0).all()):
         raise InvalidInputError("squared_residuals must be finite and >= 0")

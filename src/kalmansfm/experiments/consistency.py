@@ -31,7 +31,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import InvalidInputError
-from .._validation import check_count
+from .._validation import check_choice, check_count
 from ..estimation.fusion import fuse_recursive
 from ..structure.fusion.landmark import TASK7_DEFAULT_METHOD, check_method, estimate_landmarks
 from ..structure.geometry.triangulation import check_focal
@@ -306,8 +306,7 @@ def task7_consistency(
     (True, 24)
     """
     check_method(method)
-    if space not in SPACES:
-        raise InvalidInputError(f"space must be one of {', '.join(SPACES)}; got {space!r}")
+    check_choice("space", space, SPACES)
     if space == "inverse_depth" and method != "recursive":
         raise InvalidInputError(f"space 'inverse_depth' is the recursive filter's state; method is {method!r}")
     runs, seed = _check_runs_seed(runs, seed, method)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from .._validation import check_count, check_positive
+from .._validation import check_choice, check_count, check_positive
 from ..errors import InvalidInputError
 
 __all__ = ["DETECTORS", "FeatureSettings"]
@@ -63,8 +63,7 @@ class FeatureSettings:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.detector not in DETECTORS:
-            raise InvalidInputError(f"detector must be one of {', '.join(DETECTORS)}; got {self.detector!r}")
+        check_choice("detector", self.detector, DETECTORS)
         if not isinstance(self.root_sift, (bool,)):
             raise InvalidInputError(f"root_sift must be True or False; got {self.root_sift!r}")
         for name in ("max_features", "pair_window", "retrieval_neighbours", "workers", "seed"):

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.ground_truth import GroundTruth
-from .._validation import check_count, check_fits_in_memory
+from .._validation import check_choice, check_count, check_fits_in_memory
 
 __all__ = [
     "DEFAULT_SCENE_FRAMES",
@@ -443,8 +443,7 @@ def render_scene(
     seed = check_count("seed", seed, 0)
     if not np.isfinite(pixel_noise_std) or pixel_noise_std < 0:
         raise InvalidInputError(f"pixel_noise_std must be a finite number >= 0; got {pixel_noise_std!r}")
-    if scenario not in SCENARIOS:
-        raise InvalidInputError(f"scenario must be one of {', '.join(SCENARIOS)}; got {scenario!r}")
+    check_choice("scenario", scenario, SCENARIOS)
     if not 0.0 <= marker_size_px <= 30.0:
         raise InvalidInputError(f"marker_size_px must be in [0, 30] (0: no markers); got {marker_size_px}")
     if not isinstance(supersample, (int, np.integer)) or not 1 <= supersample <= 8:

@@ -32,7 +32,7 @@ from typing import Any, Union
 
 import numpy as np
 
-from .._validation import LabelledEnum
+from .._validation import LabelledEnum, check_choice
 from ..errors import InvalidInputError
 from .points import PointStatus, rms_std
 
@@ -464,10 +464,8 @@ class Reconstruction:
     timings: dict[str, float] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
-        if self.kind not in RECONSTRUCTION_KINDS:
-            raise InvalidInputError(f"kind must be one of {', '.join(RECONSTRUCTION_KINDS)}; got {self.kind!r}")
-        if self.camera_model not in CAMERA_MODELS:
-            raise InvalidInputError(f"camera_model must be one of {', '.join(CAMERA_MODELS)}; got {self.camera_model!r}")
+        check_choice("kind", self.kind, RECONSTRUCTION_KINDS)
+        check_choice("camera_model", self.camera_model, CAMERA_MODELS)
         F, P = self.observations.shape
         if self.projections.shape != (F, 3, 4) or self.points.shape != (P, 3):
             raise InvalidInputError(f"a reconstruction of {F} frames and {P} points needs ({F}, 3, 4) projections and "

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InvalidInputError, NotEnoughDataError
-from ..._validation import as_float_array, check_positive
+from ..._validation import as_float_array, check_choice, check_positive
 from ..geometry.pinhole import CameraSet
 from .fuse import fuse
 from .pairs import pair_triangulations
@@ -189,8 +189,7 @@ def check_method(method: str) -> str:
     >>> check_method("pairs")
     'pairs'
     """
-    if method not in FUSION_METHODS:
-        raise InvalidInputError(f"method must be one of {', '.join(FUSION_METHODS)}; got {method!r}")
+    check_choice("method", method, FUSION_METHODS)
     return method
 
 

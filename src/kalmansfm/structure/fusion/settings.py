@@ -8,7 +8,7 @@ import numpy as np
 from scipy import stats
 
 from ...errors import InvalidInputError
-from ..._validation import check_count, check_positive
+from ..._validation import check_choice, check_count, check_positive
 from ...estimation.noise_model import NOISE_MODELS
 
 __all__ = ["DEFAULT_CHUNK_POINTS", "DEFAULT_NOISE_MODEL", "DEFAULT_OUTLIER_PROBABILITY", "FUSION_METHODS",
@@ -57,8 +57,7 @@ class FusionSettings:
     track_scales: bool = False
 
     def __post_init__(self) -> None:
-        if self.method not in FUSION_METHODS:
-            raise InvalidInputError(f"method must be one of {', '.join(FUSION_METHODS)}; got {self.method!r}")
+        check_choice("method", self.method, FUSION_METHODS)
         if self.pixel_std is not None:
             sigma = check_positive("pixel_std", self.pixel_std, "pixels")
             if not 1e-9 <= sigma <= MAX_PIXEL_STD:
@@ -78,8 +77,7 @@ class FusionSettings:
         object.__setattr__(self, "track_scales", bool(self.track_scales))
         if self.orientation is not None:
             object.__setattr__(self, "orientation", check_orientation(self.orientation))
-        if self.noise_model not in NOISE_MODELS:
-            raise InvalidInputError(f"noise_model must be one of {', '.join(NOISE_MODELS)}; got {self.noise_model!r}")
+        check_choice("noise_model", self.noise_model, NOISE_MODELS)
 
     @property
     def gate2(self) -> float:

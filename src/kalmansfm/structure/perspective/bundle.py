@@ -55,7 +55,7 @@ import scipy.sparse
 from threadpoolctl import threadpool_limits
 
 from ...errors import InvalidInputError
-from ..._validation import as_float_array, check_positive
+from ..._validation import as_float_array, check_choice, check_positive
 from ..geometry.alignment import Alignment, align_similarity
 from ..geometry.pinhole import project_each
 from ..geometry.rotation import cross_matrix, rotation_exp, rotation_log
@@ -409,8 +409,7 @@ def bundle_adjust(rotations: object, centres: object, points: object, observatio
     (True, True)
     """
     R, C, X, K = _validate_problem(rotations, centres, points, observations, intrinsics)
-    if loss not in BUNDLE_LOSSES:
-        raise InvalidInputError(f"loss must be one of {', '.join(BUNDLE_LOSSES)}; got {loss!r}")
+    check_choice("loss", loss, BUNDLE_LOSSES)
     scale = check_positive("loss_scale", loss_scale, "pixels")
     obs = observations
     n, m = len(R), len(X)

@@ -12,7 +12,7 @@ import numpy as np
 from scipy import stats
 
 from ...errors import InvalidInputError, NotEnoughDataError
-from ..._validation import as_float_array, check_count, check_positive
+from ..._validation import as_float_array, check_choice, check_count, check_positive
 from ..points import PointStatus
 from ..reconstruction import (
     FREE_NETWORK_GAUGE,
@@ -72,8 +72,7 @@ class PerspectiveSettings:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.method not in PERSPECTIVE_METHODS:
-            raise InvalidInputError(f"method must be one of {', '.join(PERSPECTIVE_METHODS)}; got {self.method!r}")
+        check_choice("method", self.method, PERSPECTIVE_METHODS)
         object.__setattr__(self, "outlier_threshold_px",
                            check_positive("outlier_threshold_px", self.outlier_threshold_px, "pixels"))
         p = check_positive("outlier_probability", self.outlier_probability)
