@@ -1,6 +1,6 @@
 """``kalmansfm fuse`` on a long sequence of short tracks (issue 29): read per observation, fused in blocks of tracks.
 
-More views than :data:`kalmansfm.pipeline.fuse.DENSE_FUSION_VIEWS` send the tracks through the blocks; the
+More views than :data:`kalmansfm.structure.fusion.blocks.ONE_BLOCK_VIEWS` send the tracks through the blocks; the
 result must be the dense fusion's, and the points the scene's.
 """
 
@@ -12,8 +12,8 @@ from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
 from kalmansfm.io.cameras import cameras_csv
 from kalmansfm.io.structure import read_points_table
-from kalmansfm.pipeline.fuse import DENSE_FUSION_VIEWS
 from kalmansfm.structure.fusion import fuse
+from kalmansfm.structure.fusion.blocks import ONE_BLOCK_VIEWS
 from kalmansfm.structure.geometry.pinhole import CameraSet
 
 
@@ -36,7 +36,7 @@ def _sliding_camera(frames: int, tracks: int, seed: int = 0):
 
 
 def test_fuse_reads_and_fuses_a_long_sequence_in_blocks_as_the_dense_fusion_would(tmp_path):
-    frames = DENSE_FUSION_VIEWS + 4
+    frames = ONE_BLOCK_VIEWS + 4
     cams, obs, points = _sliding_camera(frames, 400)
     f, t = np.nonzero(np.isfinite(obs[..., 0]))
     order = np.lexsort((t, f))

@@ -25,12 +25,6 @@ __all__ = ["FuseRun", "run_fuse"]
 
 log = logging.getLogger("kalmansfm")
 
-#: Tracks over at most this many views and (views × tracks) entries are fused as one dense array; more in blocks of
-#: tracks over their own views (:func:`~kalmansfm.structure.fusion.fuse` given observations per observation):
-#: the recursive method's per-view geometry grows with the square of the views, the dense arrays with both.
-DENSE_FUSION_VIEWS = 256
-DENSE_FUSION_ENTRIES = 20_000_000
-
 
 @dataclass(frozen=True)
 class FuseRun:
@@ -90,9 +84,7 @@ def run_fuse(request: FuseRequest) -> FuseRun:
                         f"were skipped: {shown}{more}")
     views, points = data.observations.shape
     log.info("fusing %d tracks over %d views (%s)", points, views, settings.method)
-    # a (views × tracks) array that is small is fused as one; a long sequence of short tracks in blocks of tracks
-    dense = views <= DENSE_FUSION_VIEWS and views * points <= DENSE_FUSION_ENTRIES
-    observations = data.observations.dense() if dense else data.observations
+    observations = data.observations  # per observation: fuse holds them densely only where that is small
     with clock.step("fusion"):
         if request.scheduler is None and request.workers is None:
             rec = fuse(observations, data.cameras, settings=settings)

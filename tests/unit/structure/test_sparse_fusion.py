@@ -36,6 +36,7 @@ def small_blocks(monkeypatch):
     """Blocks of a few views and points, so that a small scene is cut into many."""
     monkeypatch.setattr(blocks, "_BLOCK_VIEWS", 4)
     monkeypatch.setattr(blocks, "_BLOCK_ENTRIES", 400)
+    monkeypatch.setattr(blocks, "ONE_BLOCK_VIEWS", 0)  # never one dense array
 
 
 @pytest.mark.parametrize("method", ["recursive", "batch"])
@@ -81,6 +82,16 @@ def test_a_known_sigma_fuses_each_block_alone(small_blocks):
     err = split.points[ok] - scene.points[ok]
     nees = np.einsum("ni,ni->n", err, np.linalg.solve(split.point_covariances[ok], err[..., None])[..., 0])
     assert 1.9 < np.median(nees) < 2.9
+
+
+def test_small_observations_per_observation_are_fused_as_the_dense_array():
+    scene, obs = _short_tracks(views=12, points=120)
+    dense = fuse(obs, scene.cameras)
+    given = fuse(_sparse(obs), scene.cameras)
+    assert blocks.fits_one_block(obs.shape[:2])
+    np.testing.assert_array_equal(given.points, dense.points)
+    np.testing.assert_array_equal(given.point_covariances, dense.point_covariances)
+    assert given.noise == dense.noise
 
 
 def test_observations_per_observation_must_match_the_cameras():

@@ -19,7 +19,7 @@ from ..reconstruction import Observations
 from .inverse_depth import ViewGeometry, view_geometry
 from .inputs import are_poses
 
-__all__ = ["Block", "dense_block", "orientation_of_blocks", "sparse_blocks"]
+__all__ = ["ONE_BLOCK_ENTRIES", "ONE_BLOCK_VIEWS", "Block", "dense_block", "fits_one_block", "orientation_of_blocks", "sparse_blocks"]
 
 # Points used to decide the scene orientation (the sign of the depths most points agree on).
 _ORIENTATION_SAMPLE = 2_000
@@ -28,6 +28,23 @@ _ORIENTATION_SAMPLE = 2_000
 _BLOCK_VIEWS = 32
 # A block's dense array holds at most about this many (view, point) entries.
 _BLOCK_ENTRIES = 2_000_000
+#: Observations over at most this many views and (views × points) entries are fused as one dense array, as
+#: they would be given densely; more in blocks (the recursive method's per-view geometry grows with the square
+#: of the views, a dense array with views × points).
+ONE_BLOCK_VIEWS = 256
+ONE_BLOCK_ENTRIES = 20_000_000
+
+
+def fits_one_block(shape: tuple[int, int]) -> bool:
+    """Whether observations of ``shape`` (views, points) are fused as one dense array.
+
+    Examples
+    --------
+    >>> fits_one_block((36, 4983)), fits_one_block((20000, 50047))
+    (True, False)
+    """
+    views, points = shape
+    return views <= ONE_BLOCK_VIEWS and views * points <= ONE_BLOCK_ENTRIES
 
 
 @dataclass(frozen=True)

@@ -76,7 +76,7 @@ from ..points import PointStatus
 from ..reconstruction import Observations, Reconstruction
 from .assemble import BlockResults, assemble
 from .batch import run_batch
-from .blocks import Block, chunks, dense_block, orientation_of_blocks, sparse_blocks
+from .blocks import Block, chunks, dense_block, fits_one_block, orientation_of_blocks, sparse_blocks
 from .chunks import Chunk, ChunkResult
 from .inputs import are_poses, validate_inputs, validate_sparse_inputs
 from .inverse_depth import ViewGeometry
@@ -140,9 +140,10 @@ def fuse(
         Pixel positions (x = column, y = row) of N points in the V views of
         ``cameras``, in the same view order; NaN where a point is not seen.  Or the
         same per observation (:class:`~kalmansfm.structure.Observations` of shape
-        (V, N), frame = view index): a long sequence of short tracks is then fused in
-        blocks of tracks, each over only the views it is seen in, so that memory follows
-        the observations; the result is the one the dense array gives.
+        (V, N), frame = view index): beyond :data:`~.blocks.ONE_BLOCK_VIEWS` views or
+        :data:`~.blocks.ONE_BLOCK_ENTRIES` view × point entries (a long sequence of short
+        tracks) they are fused in blocks of tracks, each over only the views it is seen in,
+        so that memory follows the observations; the result is the one the dense array gives.
     cameras : CameraSet or (V, 3, 4) projection matrices.
     method : {"recursive", "batch", "pairs"}, default "recursive"
         ``"recursive"``: the paper's Kalman fusion, view by view (inverse-depth
@@ -229,6 +230,9 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
           executor: Any | None) -> Reconstruction:
     if isinstance(observations, Observations):
         cams = validate_sparse_inputs(observations, cameras)
+        if fits_one_block(observations.shape):  # small enough to be fused as if given densely
+            observations = observations.dense()
+    if isinstance(observations, Observations):
         blocks, dense = sparse_blocks(observations), False
         n_points = observations.shape[1]
     else:
