@@ -285,7 +285,8 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
         summary = replace(summary, dropped_observations=dropped)
         lap("track_check")
     final_tracks = tracks.subset(_longest_tracks(tracks, settings.final_tracks_per_view))
-    rec = reconstruct_perspective(final_tracks.observations, K, settings=rs)
+    # from the first reconstruction's poses: its initial pair and growth need not be found again
+    rec = reconstruct_perspective(final_tracks.observations, K, settings=rs, start=first)
     lap("final_reconstruction")
     final = read_solution(rec)
     status, reasons = _view_status(features, graph, final, final_tracks, settings)

@@ -203,3 +203,34 @@ def test_settled_tracks_are_those_a_full_fusion_gives_back_unchanged():
     np.testing.assert_array_equal(state.inlier[:, settled], inlier[:, settled])
     scale = np.linalg.norm(points[settled], axis=1)
     assert np.all(np.linalg.norm(state.X[settled] - points[settled], axis=1) < 1e-5 * scale)
+
+
+def test_a_start_from_some_tracks_reaches_the_reconstruction_from_scratch(walkarounds):
+    """Started from the poses of a reconstruction of a fifth of the tracks, the reconstruction of all of them
+    lands where the one from an initial pair does (the same least-squares optimum, up to the gauge), in the
+    start's frame."""
+    from kalmansfm.structure.geometry.alignment import align_similarity
+
+    scene, full = walkarounds[1]
+    some = reconstruct_perspective(scene.observations[:, ::5], scene.intrinsics)
+    started = reconstruct_perspective(scene.observations, scene.intrinsics, start=some)
+    assert started.details.initial_pair == some.details.initial_pair
+    a, b = some.details.initial_pair
+    np.testing.assert_allclose(started.centres[a], 0.0, atol=1e-12)
+    assert np.linalg.norm(started.centres[b]) == pytest.approx(1.0, rel=1e-12)
+    assert started.registered.all()
+    np.testing.assert_array_equal(started.observations.used_mask(), full.observations.used_mask())
+    assert started.noise.std == pytest.approx(full.noise.std, rel=1e-5)
+    both = np.concatenate([started.centres, started.points[full.reconstructed]])
+    alignment = align_similarity(both, np.concatenate([full.centres, full.points[full.reconstructed]]))
+    assert alignment.rms < 1e-5 * np.linalg.norm(full.centres, axis=1).max()
+
+
+def test_a_start_that_does_not_fit_is_refused():
+    s = perspective_scene(frames=6, points=120, seed=2)
+    rec = reconstruct_perspective(s.observations, s.intrinsics)
+    with pytest.raises(InvalidInputError, match="same 5 frames; got a perspective reconstruction of 6 frames"):
+        reconstruct_perspective(s.observations[:5], s.intrinsics[:5], start=rec)
+    with pytest.raises(InvalidInputError, match="start poses are for the batch method"):
+        reconstruct_perspective(s.observations, s.intrinsics, settings=PerspectiveSettings(method="recursive"),
+                                start=rec)

@@ -246,6 +246,21 @@ class _Incremental:
         self._bundle("huber", _GROWTH_TOLERANCE)
         self.last_global = 2
 
+    def start_from(self, rotations: np.ndarray, centres: np.ndarray, registered: np.ndarray,
+                   initial_pair: tuple[int, int]) -> None:
+        """Take the registered poses of an earlier reconstruction of these frames instead of an initial pair.
+
+        Every track seen in two of those frames is triangulated and one bundle adjustment follows; growth
+        and refinement then go on as after an initial pair.
+        """
+        self.initial_pair = initial_pair
+        self.R[registered], self.C[registered] = rotations[registered], centres[registered]
+        self.frame_status[registered] = FrameStatus.REGISTERED
+        self._triangulate(np.flatnonzero(self.seen[registered].sum(axis=0) >= 2))
+        self._bundle("huber", _GROWTH_TOLERANCE)
+        self.last_global = int(registered.sum())
+        self._reject(2.0 * self.threshold)
+
     def _why_no_pair(self, tried: list[_PairCandidate]) -> str:
         need = 2 * self.settings.min_registration_points
         if not tried:
@@ -472,11 +487,20 @@ class _Incremental:
             self.warnings.append(f"only {done} of {self.P} tracks were reconstructed")
 
 
-def reconstruct_incremental(observations: np.ndarray, intrinsics: np.ndarray,
-                            settings: PerspectiveSettings) -> Reconstruction:
-    """Initial pair, growth, refinement and covariances on validated (F, P, 2) tracks and (F, 3, 3) K."""
+def reconstruct_incremental(observations: np.ndarray, intrinsics: np.ndarray, settings: PerspectiveSettings,
+                            start: Reconstruction | None = None) -> Reconstruction:
+    """Initial pair (or ``start``'s registered poses), growth, refinement and covariances.
+
+    On validated (F, P, 2) tracks and (F, 3, 3) K; ``start`` is a reconstruction of the same F frames
+    whose registered poses replace the initial pair (the result is then in its frame).
+    """
     state = _Incremental(observations, intrinsics, settings)
-    state.initialize()
+    if start is None:
+        state.initialize()
+    else:
+        registered = start.frame_status == FrameStatus.REGISTERED
+        state.start_from(start.rotations, camera_centres(start.rotations, start.translations), registered,
+                         start.details.initial_pair)
     state.grow()
     state.refine()
     return state.result("batch")

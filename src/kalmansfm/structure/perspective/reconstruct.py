@@ -59,7 +59,7 @@ from .settings import (
 )
 from .incremental import reconstruct_incremental
 from .recursive import reconstruct_recursive
-from ..reconstruction import Reconstruction
+from ..reconstruction import PerspectiveDetails, Reconstruction
 
 __all__ = [
     "COVARIANCE_GAUGE",
@@ -74,7 +74,8 @@ __all__ = [
 @single_threaded_blas
 def reconstruct_perspective(observations: object, intrinsics: object, method: str | None = None, *,
                             outlier_threshold_px: float | None = None,
-                            settings: PerspectiveSettings | None = None) -> Reconstruction:
+                            settings: PerspectiveSettings | None = None,
+                            start: Reconstruction | None = None) -> Reconstruction:
     """Camera poses and 3-D points from calibrated point tracks, with covariances in the free-network gauge.
 
     Parameters
@@ -94,6 +95,9 @@ def reconstruct_perspective(observations: object, intrinsics: object, method: st
     settings : PerspectiveSettings, optional
         All options at once; then ``method`` and ``outlier_threshold_px`` must not be
         given as well (they belong inside ``settings``).
+    start : Reconstruction, optional
+        A batch reconstruction of the same F frames (e.g. of some of these tracks): its registered
+        poses replace the initial pair, and the result is in its frame (batch method only).
 
     Returns
     -------
@@ -129,6 +133,19 @@ def reconstruct_perspective(observations: object, intrinsics: object, method: st
         raise InvalidInputError("reconstruct_perspective: give method and outlier_threshold_px inside settings, "
                                 "not beside it (settings would silently win)")
     obs, K = validate_tracks_and_intrinsics(observations, intrinsics)
+    if start is not None:
+        _check_start(start, settings, len(obs))
     if settings.method == "recursive":
         return reconstruct_recursive(obs, K, settings)
-    return reconstruct_incremental(obs, K, settings)
+    return reconstruct_incremental(obs, K, settings, start)
+
+
+def _check_start(start: object, settings: PerspectiveSettings, frames: int) -> None:
+    if settings.method != "batch":
+        raise InvalidInputError(f"reconstruct_perspective: start poses are for the batch method, not {settings.method!r}")
+    if not isinstance(start, Reconstruction) or start.kind != "perspective" or start.rotations.shape[0] != frames \
+            or not isinstance(start.details, PerspectiveDetails):
+        what = type(start).__name__ if not isinstance(start, Reconstruction) else \
+            f"a {start.kind} reconstruction of {start.rotations.shape[0]} frames"
+        raise InvalidInputError(f"reconstruct_perspective: start must be a batch perspective reconstruction of the "
+                                f"same {frames} frames; got {what}")
