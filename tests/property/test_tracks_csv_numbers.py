@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kalmansfm.io.tracks import tracks_to_csv
-from kalmansfm.tracking.tracks import Tracks
+from kalmansfm.tracking.tracks import Tracks, TrackStatus
 
 numbers = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True, width=64),
@@ -22,11 +22,14 @@ def _by_the_rule(value: float) -> str:
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.lists(numbers, min_size=6, max_size=6), min_size=1, max_size=12))
-def test_every_number_is_written_by_the_rule(rows):
+@given(st.lists(st.lists(numbers, min_size=6, max_size=6), min_size=1, max_size=12),
+       st.lists(st.sampled_from([TrackStatus.MEASURED, TrackStatus.PREDICTED, TrackStatus.LOST]), min_size=12,
+                max_size=12))
+def test_every_number_is_written_by_the_rule(rows, statuses):
+    """Each field by the rule; a lost row (written by a format of its own) has every value field empty."""
     values = np.array(rows, dtype=np.float64)
     tracks = Tracks.empty(len(rows), 1)
-    tracks.status[:] = 1  # measured
+    tracks.status[:, 0] = statuses[: len(rows)]
     tracks.states[:, 0] = values[:, :4]
     with np.errstate(over="ignore"):  # a standard deviation beyond 1e154 has an infinite variance: written empty
         variances = values[:, 4:] ** 2
@@ -35,7 +38,8 @@ def test_every_number_is_written_by_the_rule(rows):
     tracks.covariances[:, 0, 1, 1] = variances[:, 1]
     lines = tracks_to_csv(tracks).splitlines()[1:]
     assert len(lines) == len(rows)
-    for line, state, position_std in zip(lines, values[:, :4], tracks.position_std[:, 0]):
+    for line, state, position_std, status in zip(lines, values[:, :4], tracks.position_std[:, 0], statuses):
         fields = line.split(",")
-        assert fields[2:8] == [_by_the_rule(v) for v in (*state, *position_std)]
-        assert fields[8] == "measured"
+        lost = status == TrackStatus.LOST
+        assert fields[2:8] == ([""] * 6 if lost else [_by_the_rule(v) for v in (*state, *position_std)])
+        assert fields[8] == status.label

@@ -116,14 +116,21 @@ def tracks_to_csv(tracks: Tracks) -> str:
     rows, cols = rows[order], cols[order]
     status = tracks.status[rows, cols]
     values = np.concatenate([tracks.states[rows, cols], tracks.position_std[rows, cols]], axis=1)
-    values[status == LOST] = np.nan
+    lost = status == LOST
+    values[lost] = np.nan
     words = np.array([s.label for s in TrackStatus])[status]
     frames = tracks.frames[rows].tolist()  # type: ignore[index]
     ids = tracks.track_ids[cols].tolist()
-    # one format per row and three passes over the whole text: a third of the time of formatting each number
+    # one format per row and two or three passes over the whole text: a third of the time of formatting each
+    # number; a lost row has no values and its own format, so the pass that empties NaN fields is needed only
+    # when a row with values has a non-finite one
     row = "%d,%d," + ",".join(["%.6f"] * values.shape[1]) + ",%s\n"
-    text = "".join([row % (f, i, *v, word) for f, i, v, word in zip(frames, ids, values.tolist(), words.tolist())])
-    text = _BARE_POINT.sub("", _TRAILING_ZEROS.sub(r"\1", NOT_FINITE_FIELD.sub("", text)))
+    empty = "%d,%d" + "," * values.shape[1] + f",{TrackStatus.LOST.label}\n"
+    text = "".join([empty % (f, i) if gone else row % (f, i, *v, word)
+                    for f, i, v, word, gone in zip(frames, ids, values.tolist(), words.tolist(), lost.tolist())])
+    if not np.isfinite(values[~lost]).all():
+        text = NOT_FINITE_FIELD.sub("", text)
+    text = _BARE_POINT.sub("", _TRAILING_ZEROS.sub(r"\1", text))
     return ",".join(TRACK_CSV_COLUMNS) + "\n" + text
 
 
