@@ -264,7 +264,9 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
     if settings.guided_matching:
         index = _longest_tracks(tracks, settings.skeleton_tracks_per_view)
         try:
-            first = reconstruct_perspective(tracks.subset(index).observations, K, settings=rs)
+            # a rough skeleton is enough to predict where features are: its refinement rounds are left to the final
+            first = reconstruct_perspective(tracks.subset(index).observations, K,
+                                            settings=replace(rs, refinement_rounds=0))
         except NotEnoughDataError as exc:  # the skeleton was too thin: reconstruct the full selection directly
             warnings.append(f"guided matching skipped: the first reconstruction of each view's "
                             f"{settings.skeleton_tracks_per_view} longest tracks failed ({exc})")

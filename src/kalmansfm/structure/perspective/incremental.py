@@ -424,13 +424,13 @@ class _Incremental:
         settled[tracks] = ~bad_track & (views >= 2) & (views == self.seen[frames][:, tracks].sum(axis=0))
         return settled
 
-    def refine(self, max_rounds: int = 8) -> None:
+    def refine(self) -> None:
         frames = np.flatnonzero(self.registered)
         candidates = np.flatnonzero(self.seen[frames].sum(axis=0) >= 2)
         self._triangulate(candidates[~self._settled(self.threshold)[candidates]], readmit=True)
         self._bundle("huber")
         adjusted = False  # by least squares, on the current inliers
-        for _ in range(max_rounds):
+        for _ in range(self.settings.refinement_rounds):
             sigma, _, _ = self._sigma()
             gate = max(self.threshold, np.sqrt(self.settings.chi2_bound) * sigma)
             inlier, reconstructed = self.inlier.copy(), self.has_point.copy()

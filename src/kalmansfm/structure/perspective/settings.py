@@ -59,6 +59,9 @@ class PerspectiveSettings:
     min_registration_points : a frame is registered only with at least this many
         PnP inliers (and a pair needs twice as many shared inliers).
     max_initial_pairs : frame pairs tried as the initial pair.
+    refinement_rounds : at most this many refinement rounds of [re-estimate the points with the outlier test →
+        bundle adjustment] after the growth (they stop earlier when a round changes nothing); 0 leaves one robust
+        bundle adjustment of all tracks (a rough reconstruction that only seeds another, as the front end's first).
     seed : seed of the RANSAC random generator (OpenCV's), for reproducible runs.
     """
 
@@ -69,6 +72,7 @@ class PerspectiveSettings:
     min_pair_angle_deg: float = 2.0
     min_registration_points: int = 12
     max_initial_pairs: int = 40
+    refinement_rounds: int = 8
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -84,6 +88,7 @@ class PerspectiveSettings:
         object.__setattr__(self, "min_registration_points",
                            check_count("min_registration_points", self.min_registration_points, 6))
         object.__setattr__(self, "max_initial_pairs", check_count("max_initial_pairs", self.max_initial_pairs, 1))
+        object.__setattr__(self, "refinement_rounds", check_count("refinement_rounds", self.refinement_rounds, 0))
         object.__setattr__(self, "seed", check_count("seed", self.seed, 0))
 
     @property
