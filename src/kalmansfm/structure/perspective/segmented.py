@@ -40,7 +40,7 @@ from ..geometry.alignment import align_similarity
 from ..geometry.pinhole import CameraSet
 from ..reconstruction import FrameStatus, Observations, PerspectiveDetails, Reconstruction
 from .reconstruct import reconstruct_perspective
-from .settings import PerspectiveSettings, frame_runs, validate_intrinsics
+from .settings import PerspectiveSettings, validate_intrinsics
 
 __all__ = [
     "DENSE_MAX_ENTRIES",
@@ -90,22 +90,29 @@ def fits_dense_reconstruction(shape: tuple[int, int]) -> bool:
     return frames <= DENSE_MAX_FRAMES and frames * tracks <= DENSE_MAX_ENTRIES
 
 
-def segment_windows(n_frames: int, window: int = WINDOW_FRAMES, overlap: int = WINDOW_OVERLAP) -> list[tuple[int, int]]:
-    """(start, stop) of overlapping windows of ``window`` frames covering ``n_frames``; the last one ends at the end.
+def segment_windows(n_frames: int, window: int | None = None, overlap: int | None = None) -> list[tuple[int, int]]:
+    """(start, stop) of windows of ``window`` frames covering ``n_frames``, consecutive ones sharing >= ``overlap``.
+
+    ``window`` and ``overlap`` default to :data:`WINDOW_FRAMES` and :data:`WINDOW_OVERLAP`.
 
     Examples
     --------
     >>> segment_windows(400, 150, 40)
-    [(0, 150), (110, 260), (220, 370), (250, 400)]
+    [(0, 150), (83, 233), (167, 317), (250, 400)]
     >>> segment_windows(100, 150, 40)
     [(0, 100)]
     """
-    if not 0 <= overlap < window:
-        raise InvalidInputError(f"window overlap must be in [0, {window}) frames; got {overlap}")
+    window = WINDOW_FRAMES if window is None else int(window)
+    overlap = WINDOW_OVERLAP if overlap is None else int(overlap)
+    if window < 2 or not 0 <= overlap < window:
+        raise InvalidInputError(f"windows need >= 2 frames and an overlap in [0, window) frames; got {window} and "
+                                f"{overlap}")
     if n_frames <= window:
         return [(0, n_frames)]
-    starts = list(range(0, n_frames - window, window - overlap))
-    return [(s, s + window) for s in starts] + [(n_frames - window, n_frames)]
+    # as few windows as share at least the overlap, spread evenly (no nearly repeated last window)
+    count = -(-(n_frames - overlap) // (window - overlap))
+    starts = np.round(np.linspace(0, n_frames - window, count)).astype(int).tolist()
+    return [(s, s + window) for s in starts]
 
 
 @dataclass(frozen=True)
@@ -254,7 +261,7 @@ def _chain_fit(previous: _Window, window: _Window) -> SimilarityFit:
 
 
 def reconstruct_segmented(observations: Observations, intrinsics: object, settings: PerspectiveSettings | None = None,
-                          *, window_frames: int = WINDOW_FRAMES, overlap_frames: int = WINDOW_OVERLAP,
+                          *, window_frames: int | None = None, overlap_frames: int | None = None,
                           progress: Callable[[int, int], object] | None = None) -> Reconstruction:
     """Camera poses and 3-D points of a long video-ordered sequence, reconstructed in overlapping windows.
 
@@ -269,7 +276,8 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     intrinsics : (3, 3) or (F, 3, 3) — K of every frame.
     settings : PerspectiveSettings, optional — how each window is reconstructed; its outlier
         probability is also the final fusion's.
-    window_frames, overlap_frames : the windows (:func:`segment_windows`).
+    window_frames, overlap_frames : the windows (:func:`segment_windows`; default :data:`WINDOW_FRAMES`
+        and :data:`WINDOW_OVERLAP`).
     progress : called after each window with (windows done, windows), e.g. for a progress bar.
 
     Returns
@@ -310,6 +318,8 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     timings: dict[str, float] = {}
     by_frame = np.argsort(observations.frame, kind="stable")
     frame_sorted = observations.frame[by_frame]
+    window_frames = WINDOW_FRAMES if window_frames is None else window_frames
+    overlap_frames = WINDOW_OVERLAP if overlap_frames is None else overlap_frames
     spans = segment_windows(F, window_frames, overlap_frames)
     windows: list[_Window] = []
     breaks: list[str] = []
@@ -362,8 +372,7 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
         warnings.append("; ".join(breaks[:5]))
     missing = np.flatnonzero(~registered)
     if missing.size:
-        warnings.append(f"{missing.size} of {F} frames have no camera (frames {frame_runs(missing[:200])}"
-                        f"{', …' if missing.size > 200 else ''})")
+        warnings.append(f"{missing.size} of {F} frames have no camera")
     projections = np.full((F, 3, 4), np.nan)
     projections[registered] = K[registered] @ np.concatenate([rotations[registered],
                                                               translations[registered, :, None]], axis=2)
