@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.perspective import sliding_sequence
+from kalmansfm.structure import Observations
 from kalmansfm.structure.geometry.alignment import align_similarity
 from kalmansfm.structure.perspective import segmented
 from kalmansfm.structure.perspective.segmented import (
@@ -127,3 +128,21 @@ def test_bad_windows_and_inputs_are_refused():
 def test_the_size_threshold():
     assert fits_dense_reconstruction((36, 4983)) and not fits_dense_reconstruction((20000, 50047))
     assert not fits_dense_reconstruction((segmented.DENSE_MAX_FRAMES + 1, 10))
+
+
+def test_a_sequence_cut_in_two_keeps_its_longer_part_and_says_where_it_broke():
+    s = sliding_sequence(220, 650, seed=5)
+    obs = s.observations
+    # no track crosses frames 150-169: the parts before and after share nothing
+    before = np.zeros(obs.shape[1], bool)
+    after = np.zeros(obs.shape[1], bool)
+    before[obs.point[obs.frame < 150]] = True
+    after[obs.point[obs.frame >= 170]] = True
+    keep = (before ^ after)[obs.point] & ((obs.frame < 150) | (obs.frame >= 170))
+    cut = Observations.from_sparse(obs.shape, obs.frame[keep], obs.point[keep], obs.xy[keep])
+    rec = reconstruct_segmented(cut, s.cameras.decompose().intrinsics, window_frames=60, overlap_frames=20)
+    frames = np.flatnonzero(rec.registered)
+    assert frames.max() < 150 and frames.size > 130
+    assert any("broke 1 times" in w and "could not be chained" in w for w in rec.warnings)
+    assert any("reconstructed again with lower registration thresholds" in w for w in rec.warnings)
+    assert np.isnan(rec.points[after & ~before]).all() and rec.reconstructed[before].mean() > 0.8

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -250,6 +250,35 @@ def _reconstruct_window(observations: Observations, by_frame: np.ndarray, frame_
     return window
 
 
+def _relaxed(settings: PerspectiveSettings) -> PerspectiveSettings:
+    """The settings a window that could not be reconstructed or chained is tried again with.
+
+    A window's growth can stall at a frame that sees few points already triangulated with enough
+    parallax; a third fewer PnP inliers and half the triangulation angle let it go on.
+    """
+    return replace(settings, min_registration_points=max(6, 2 * settings.min_registration_points // 3),
+                   min_triangulation_angle_deg=settings.min_triangulation_angle_deg / 2)
+
+
+def _window_in_chain(observations: Observations, by_frame: np.ndarray, frame_sorted: np.ndarray,
+                     intrinsics: np.ndarray, settings: PerspectiveSettings, start: int, stop: int,
+                     previous: _Window | None, timings: dict[str, float]
+                     ) -> tuple[_Window, SimilarityFit | None, str | None]:
+    """A window, its similarity onto the ``previous`` one (None: none before it or no fit) and why it failed, if it did."""
+    window = _reconstruct_window(observations, by_frame, frame_sorted, intrinsics, settings, start, stop, timings)
+    if window.failure is not None:
+        return window, None, f"frames {start}-{stop - 1} could not be reconstructed ({window.failure})"
+    if previous is None:
+        return window, None, None
+    began = time.perf_counter()
+    try:
+        return window, _chain_fit(previous, window), None
+    except NotEnoughDataError as exc:
+        return window, None, f"frames {start}-{stop - 1} could not be chained to the window before ({exc})"
+    finally:
+        timings["chaining"] = timings.get("chaining", 0.0) + time.perf_counter() - began
+
+
 def _chain_fit(previous: _Window, window: _Window) -> SimilarityFit:
     """The similarity taking ``window`` onto ``previous`` (already chained), from shared cameras and points."""
     assert previous.frames is not None and window.frames is not None
@@ -324,26 +353,26 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     windows: list[_Window] = []
     breaks: list[str] = []
     chains = 0
+    relaxed = _relaxed(settings)
+    retried = 0
     for k, (start, stop) in enumerate(spans):
-        window = _reconstruct_window(observations, by_frame, frame_sorted, K, settings, start, stop, timings)
-        began = time.perf_counter()
-        if window.failure is not None:
-            breaks.append(f"frames {start}-{stop - 1} could not be reconstructed ({window.failure})")
-        else:
-            previous = windows[-1] if windows else None
-            fit = None
-            if previous is not None and previous.failure is None:
-                try:
-                    fit = _chain_fit(previous, window)
-                except NotEnoughDataError as exc:
-                    breaks.append(f"frames {start}-{stop - 1} could not be chained to the window before ({exc})")
+        previous = windows[-1] if windows and windows[-1].failure is None else None
+        window, fit, why = _window_in_chain(observations, by_frame, frame_sorted, K, settings, start, stop, previous,
+                                            timings)
+        if why is not None:  # most often the growth stalled at a weak frame: once more with lower thresholds
+            retried += 1
+            again = _window_in_chain(observations, by_frame, frame_sorted, K, relaxed, start, stop, previous, timings)
+            if again[2] is None or (window.failure is not None and again[0].failure is None):
+                window, fit, why = again
+        if why is not None:
+            breaks.append(why)
+        if window.failure is None:
             if fit is None:
                 chains += 1
             else:
                 window.move(fit)
             window.chain = chains - 1
         windows.append(window)
-        timings["chaining"] = timings.get("chaining", 0.0) + time.perf_counter() - began
         if progress is not None:
             progress(k + 1, len(spans))
     done = [w for w in windows if w.failure is None]
@@ -370,6 +399,9 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
                         + (f"; … ({len(breaks)} in all)" if len(breaks) > 5 else ""))
     elif breaks:
         warnings.append("; ".join(breaks[:5]))
+    if retried:
+        warnings.append(f"{retried} windows were reconstructed again with lower registration thresholds "
+                        "(growth had stalled, or they did not chain)")
     missing = np.flatnonzero(~registered)
     if missing.size:
         warnings.append(f"{missing.size} of {F} frames have no camera")
