@@ -90,3 +90,18 @@ def test_bad_input_is_one_line_and_leaves_no_folder(files, capsys, k_text, track
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not (files / "run").exists()
+
+
+@pytest.mark.slow
+def test_tracks_beyond_the_dense_threshold_take_the_segmented_path(tmp_path, capsys):
+    """The real threshold and windows (the fast tests above make them small)."""
+    s = sliding_sequence(segmented.DENSE_MAX_FRAMES + 100, 3000, seed=4)
+    obs = s.observations
+    with open(tmp_path / "tracks.csv", "w") as handle:
+        handle.write("frame,track_id,x,y\n")
+        np.savetxt(handle, np.c_[obs.frame, obs.point, obs.xy], fmt=["%d", "%d", "%.4f", "%.4f"], delimiter=",")
+    (tmp_path / "K.csv").write_text(intrinsics_csv(np.arange(obs.shape[0]), s.cameras.decompose().intrinsics))
+    assert main(args(tmp_path, "--no-plot")) == 0
+    p = read_summary(tmp_path / "run" / "summary.json").reconstruction
+    assert p.method == "segmented" and p.registered_frames > 0.97 * obs.shape[0]
+    assert p.noise_std == pytest.approx(0.5, rel=0.1)

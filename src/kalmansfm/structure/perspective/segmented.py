@@ -38,7 +38,7 @@ from ...errors import InvalidInputError, NotEnoughDataError
 from ..fusion import FusionSettings, fuse
 from ..geometry.alignment import align_similarity
 from ..geometry.pinhole import CameraSet
-from ..reconstruction import FrameStatus, Observations, PerspectiveDetails, Reconstruction
+from ..reconstruction import SEGMENTED_GAUGE, FrameStatus, Observations, PerspectiveDetails, Reconstruction
 from .reconstruct import reconstruct_perspective
 from .settings import PerspectiveSettings, validate_intrinsics
 
@@ -70,13 +70,6 @@ MIN_CHAIN_MATCHES = 10
 #: In the chain's similarity fit, a match whose residual exceeds this many times the median is left out.
 CHAIN_OUTLIER_FACTOR = 3.0
 _TRIM_ROUNDS = 5
-
-#: How the point covariances of a segmented reconstruction are to be read.
-SEGMENTED_GAUGE = ("cameras of the segmented reconstruction taken as exact: each point's covariance given the "
-                   "chained cameras (it leaves out the cameras' uncertainty and the chain's drift); world frame of "
-                   "the first window's initial pair (its first camera at the origin, unit baseline); the camera "
-                   "covariances are each window's free-network ones carried into that frame")
-
 
 def fits_dense_reconstruction(shape: tuple[int, int]) -> bool:
     """Whether tracks of ``shape`` (frames, tracks) are reconstructed as one dense problem, not in windows.
