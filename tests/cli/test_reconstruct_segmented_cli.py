@@ -54,7 +54,7 @@ def args(folder, *more):
 def test_a_long_sequence_is_reconstructed_in_windows_into_a_whole_run_folder(files, scene, capsys):
     assert main(args(files)) == 0
     printed = capsys.readouterr().out
-    assert "method: segmented" in printed and "reconstructed in 4 windows of 60 frames" in printed
+    assert "method: segmented" in printed and "reconstructed in 3 windows of up to 60 frames" in printed
     run = files / "run"
     assert sorted(p.name for p in run.iterdir()) == [
         "cameras.csv", "reconstruction.npz", "reconstruction.png", "structure.csv", "structure.ply", "summary.json"]

@@ -24,7 +24,7 @@ from ..io.summary import RunSummary, run_source
 from ..io.tracks import TrackObservations, read_track_observations, read_tracks
 from ..structure import Observations, Reconstruction
 from ..structure.perspective import reconstruct_perspective
-from ..structure.perspective.segmented import fits_dense_reconstruction, reconstruct_segmented, segment_windows
+from ..structure.perspective.segmented import fits_dense_reconstruction, reconstruct_segmented
 from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, reconstruction_metrics
 from .perspective import resolve_intrinsics
@@ -216,8 +216,8 @@ def _run_segmented(request: ReconstructRequest, camera: Perspective, observed: T
     observations = Observations.from_sparse((observed.frames.size, observed.track_ids.size), observed.frame,
                                             observed.track, observed.xy)
     with clock.step("perspective reconstruction"):
-        with tqdm(total=len(segment_windows(observed.frames.size)), desc="windows", unit="window",
-                  disable=not request.progress, leave=False) as bar:
+        with tqdm(total=observed.frames.size, desc="windows of frames", unit="frame", disable=not request.progress,
+                  leave=False) as bar:
             rec = reconstruct_segmented(observations, K, camera.settings, progress=lambda done, _: bar.update(done - bar.n))
     rec = rec.with_ids(observed.frames, observed.track_ids)
     metrics = reconstruction_metrics(rec, intrinsics=source)

@@ -15,7 +15,7 @@ from kalmansfm.structure.perspective.segmented import (
     fits_dense_reconstruction,
     reconstruct_segmented,
     robust_similarity,
-    segment_windows,
+    window_stop,
 )
 
 STEP = 0.02  # sliding_sequence's default
@@ -107,20 +107,27 @@ def test_robust_similarity_needs_enough_matches():
 
 @settings(max_examples=50, deadline=None)
 @given(st.integers(2, 2000), st.integers(2, 300), st.data())
-def test_windows_cover_every_frame_and_overlap(n_frames, window, data):
+def test_windows_walked_from_the_first_frame_cover_every_frame_and_overlap(n_frames, window, data):
     overlap = data.draw(st.integers(0, window - 1))
-    spans = segment_windows(n_frames, window, overlap)
     covered = np.zeros(n_frames, int)
-    for start, stop in spans:
-        assert 0 <= start < stop <= n_frames and stop - start == min(window, n_frames)
+    start, spans = 0, []
+    while True:
+        stop = window_stop(start, n_frames, window, overlap)
+        spans.append((start, stop))
         covered[start:stop] += 1
+        if stop >= n_frames:
+            break
+        start = stop - overlap
     assert covered.min() >= 1 and spans[-1][1] == n_frames
-    assert all(b[0] <= a[1] - overlap for a, b in zip(spans, spans[1:]))  # consecutive windows share the overlap
+    # full windows, the last one up to half a step longer; each begins after the one before
+    assert all(stop - start == window for start, stop in spans[:-1])
+    assert spans[-1][1] - spans[-1][0] < window + (window - overlap) // 2 or n_frames <= window
+    assert all(b[0] > a[0] for a, b in zip(spans, spans[1:]))
 
 
 def test_bad_windows_and_inputs_are_refused():
     with pytest.raises(InvalidInputError, match="overlap"):
-        segment_windows(100, 50, 50)
+        window_stop(0, 100, 50, 50)
     with pytest.raises(InvalidInputError, match="Observations"):
         reconstruct_segmented(np.zeros((3, 4, 2)), np.eye(3))
 
@@ -144,5 +151,5 @@ def test_a_sequence_cut_in_two_keeps_its_longer_part_and_says_where_it_broke():
     frames = np.flatnonzero(rec.registered)
     assert frames.max() < 150 and frames.size > 130
     assert any("broke 1 times" in w and "could not be chained" in w for w in rec.warnings)
-    assert any("reconstructed again with lower registration thresholds" in w for w in rec.warnings)
+    assert any("tried again (lower registration thresholds, then a shorter span)" in w for w in rec.warnings)
     assert np.isnan(rec.points[after & ~before]).all() and rec.reconstructed[before].mean() > 0.8

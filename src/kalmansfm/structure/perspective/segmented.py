@@ -5,19 +5,24 @@ few dozen frames) is too large for one incremental reconstruction: its (frames �
 and its global bundle adjustments grow with the whole sequence.  Here memory and time follow the
 observations instead:
 
-1. **Windows.**  The frames are cut into windows of :data:`WINDOW_FRAMES` consecutive frames,
-   each overlapping the next by :data:`WINDOW_OVERLAP` frames.  Each window, with the tracks seen
-   at least twice in it, is a small dense problem, reconstructed by
+1. **Windows.**  The frames are taken in windows of :data:`WINDOW_FRAMES` consecutive frames, each
+   beginning :data:`WINDOW_OVERLAP` frames before the previous one ends (:func:`window_stop`).  Each
+   window, with the tracks seen at least twice in it, is a small dense problem, reconstructed by
    :func:`~.reconstruct.reconstruct_perspective` (initial pair, PnP growth, bundle adjustment,
-   refinement) in its own gauge.
+   refinement) in its own gauge.  A window that registers fewer than half its frames or reconstructs
+   few of its tracks is refused (:data:`MIN_WINDOW_FRAME_SHARE`, :data:`MIN_WINDOW_POINT_SHARE`: a
+   wrong initial pair leaves a handful of points).
 2. **Chain.**  Each window is brought into the previous one's frame by the similarity (scale,
    rotation, translation) that best maps its camera centres of the shared frames and its points of
    the shared tracks onto the previous window's (:func:`robust_similarity`: least squares, refitted
-   without the matches far beyond the median residual).  The first window of the chain fixes the
-   gauge: its initial pair's first camera at the origin, unit baseline (as the dense path's).  A
-   window that cannot be reconstructed or chained breaks the chain; the longest chained run of
-   windows is kept, the frames outside it have no camera, and a warning says where it broke.
-   Errors of scale and orientation add up along the chain (no loop closure).
+   without the matches far beyond the median residual; refused when the residual is not small
+   against the matches' spread, :data:`CHAIN_MAX_RELATIVE_RMS`).  A window that cannot be
+   reconstructed or chained is tried again with lower registration thresholds (a growth that
+   stalled at a weak frame), then over a shorter span (another initial pair).  The first window of
+   the chain fixes the gauge: its initial pair's first camera at the origin, unit baseline (as the
+   dense path's).  A window that still fails breaks the chain; the longest chained part is kept,
+   the frames outside it have no camera, and a warning says where it broke.  Errors of scale and
+   orientation add up along the chain (no loop closure).
 3. **Cameras.**  A frame that several windows registered takes its camera from the window whose
    middle frame is nearest to it (the best-constrained one, away from a window's edges).
 4. **Points.**  Every track is fused from all its observations with these cameras taken as exact
@@ -52,7 +57,7 @@ __all__ = [
     "fits_dense_reconstruction",
     "reconstruct_segmented",
     "robust_similarity",
-    "segment_windows",
+    "window_stop",
 ]
 
 #: Frames per window: a small dense problem (a few hundred tracks of a video), long enough to span many track
@@ -69,6 +74,13 @@ DENSE_MAX_ENTRIES = 5_000_000
 MIN_CHAIN_MATCHES = 10
 #: In the chain's similarity fit, a match whose residual exceeds this many times the median is left out.
 CHAIN_OUTLIER_FACTOR = 3.0
+#: A chain's similarity fit is refused when its RMS residual exceeds this share of the matches' spread (the RMS
+#: distance from their centroid): the window does not agree with the one before (a wrong reconstruction).
+CHAIN_MAX_RELATIVE_RMS = 0.03
+#: A window's reconstruction is refused when it registers fewer than this share of its frames, or reconstructs
+#: fewer than :data:`MIN_WINDOW_POINT_SHARE` of its tracks seen twice (a wrong initial pair leaves a few points).
+MIN_WINDOW_FRAME_SHARE = 0.5
+MIN_WINDOW_POINT_SHARE = 0.3
 _TRIM_ROUNDS = 5
 
 def fits_dense_reconstruction(shape: tuple[int, int]) -> bool:
@@ -83,29 +95,25 @@ def fits_dense_reconstruction(shape: tuple[int, int]) -> bool:
     return frames <= DENSE_MAX_FRAMES and frames * tracks <= DENSE_MAX_ENTRIES
 
 
-def segment_windows(n_frames: int, window: int | None = None, overlap: int | None = None) -> list[tuple[int, int]]:
-    """(start, stop) of windows of ``window`` frames covering ``n_frames``, consecutive ones sharing >= ``overlap``.
+def window_stop(start: int, n_frames: int, window: int | None = None, overlap: int | None = None) -> int:
+    """Where the window that begins at frame ``start`` ends (exclusive): ``window`` frames on, or at the last frame
+    when less than half a step (``window`` − ``overlap``) would be left after it.
 
-    ``window`` and ``overlap`` default to :data:`WINDOW_FRAMES` and :data:`WINDOW_OVERLAP`.
+    ``window`` and ``overlap`` default to :data:`WINDOW_FRAMES` and :data:`WINDOW_OVERLAP`; the next
+    window begins ``overlap`` frames before this one ends.
 
     Examples
     --------
-    >>> segment_windows(400, 150, 40)
-    [(0, 150), (83, 233), (167, 317), (250, 400)]
-    >>> segment_windows(100, 150, 40)
-    [(0, 100)]
+    >>> window_stop(0, 1000, 150, 30), window_stop(840, 1000, 150, 30), window_stop(0, 100, 150, 30)
+    (150, 1000, 100)
     """
     window = WINDOW_FRAMES if window is None else int(window)
     overlap = WINDOW_OVERLAP if overlap is None else int(overlap)
     if window < 2 or not 0 <= overlap < window:
         raise InvalidInputError(f"windows need >= 2 frames and an overlap in [0, window) frames; got {window} and "
                                 f"{overlap}")
-    if n_frames <= window:
-        return [(0, n_frames)]
-    # as few windows as share at least the overlap, spread evenly (no nearly repeated last window)
-    count = -(-(n_frames - overlap) // (window - overlap))
-    starts = np.round(np.linspace(0, n_frames - window, count)).astype(int).tolist()
-    return [(s, s + window) for s in starts]
+    stop = start + window
+    return n_frames if n_frames - stop < (window - overlap) // 2 else stop
 
 
 @dataclass(frozen=True)
@@ -227,6 +235,10 @@ def _reconstruct_window(observations: Observations, by_frame: np.ndarray, frame_
     except NotEnoughDataError as exc:
         window.failure = str(exc)
         return window
+    registered, ok = int(rec.registered.sum()), int(rec.reconstructed.sum())
+    if registered < MIN_WINDOW_FRAME_SHARE * (stop - start) or ok < MIN_WINDOW_POINT_SHARE * tracks.size:
+        window.failure = f"only {registered} of {stop - start} frames registered and {ok} of {tracks.size} tracks"
+        return window
     for name, seconds in rec.timings.items():
         timings[name] = timings.get(name, 0.0) + seconds
     registered, ok = rec.registered, rec.reconstructed
@@ -241,6 +253,19 @@ def _reconstruct_window(observations: Observations, by_frame: np.ndarray, frame_
     assert isinstance(rec.details, PerspectiveDetails)
     window.initial_pair = (start + rec.details.initial_pair[0], start + rec.details.initial_pair[1])
     return window
+
+
+def _attempts(start: int, stop: int, overlap: int, settings: PerspectiveSettings
+              ) -> list[tuple[tuple[int, int], PerspectiveSettings]]:
+    """The spans and settings a window is tried with, in turn, until it is reconstructed and chained.
+
+    Its span as planned; the same with lower registration thresholds (:func:`_relaxed`); and a
+    shorter span, about half, by the frames it shares with the window before (another initial pair:
+    the best-scoring pair of a window is now and then a wrong relative pose).
+    """
+    short = min(stop, start + max(3 * overlap, (stop - start) // 2))
+    attempts = [((start, stop), settings), ((start, stop), _relaxed(settings))]
+    return attempts + ([((start, short), settings)] if short < stop else [])
 
 
 def _relaxed(settings: PerspectiveSettings) -> PerspectiveSettings:
@@ -279,7 +304,13 @@ def _chain_fit(previous: _Window, window: _Window) -> SimilarityFit:
     _, c, d = np.intersect1d(previous.tracks, window.tracks, return_indices=True)
     source = np.concatenate([window.centres[b], window.points[d]])
     target = np.concatenate([previous.centres[a], previous.points[c]])
-    return robust_similarity(source, target)
+    fit = robust_similarity(source, target)
+    used = target[fit.inliers]
+    spread = float(np.sqrt(np.mean(np.sum((used - used.mean(axis=0)) ** 2, axis=1))))
+    if fit.rms > CHAIN_MAX_RELATIVE_RMS * spread:
+        raise NotEnoughDataError(f"the shared cameras and points disagree: RMS {fit.rms:.3g} after the similarity, "
+                                 f"{fit.rms / spread:.1%} of their spread")
+    return fit
 
 
 def reconstruct_segmented(observations: Observations, intrinsics: object, settings: PerspectiveSettings | None = None,
@@ -298,9 +329,9 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     intrinsics : (3, 3) or (F, 3, 3) — K of every frame.
     settings : PerspectiveSettings, optional — how each window is reconstructed; its outlier
         probability is also the final fusion's.
-    window_frames, overlap_frames : the windows (:func:`segment_windows`; default :data:`WINDOW_FRAMES`
+    window_frames, overlap_frames : the windows (:func:`window_stop`; default :data:`WINDOW_FRAMES`
         and :data:`WINDOW_OVERLAP`).
-    progress : called after each window with (windows done, windows), e.g. for a progress bar.
+    progress : called after each window with (frames reached, frames), e.g. for a progress bar.
 
     Returns
     -------
@@ -323,7 +354,7 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     >>> from kalmansfm.scenes.perspective import perspective_scene
     >>> scene = perspective_scene(frames=8, points=150, pixel_std=0.5, seed=3)
     >>> obs = Observations.from_dense(scene.observations)
-    >>> rec = reconstruct_segmented(obs, scene.intrinsics, window_frames=5, overlap_frames=3)
+    >>> rec = reconstruct_segmented(obs, scene.intrinsics, window_frames=6, overlap_frames=2)
     >>> rec.method, int(rec.registered.sum()), int(rec.reconstructed.sum()) >= 145, round(rec.noise.std, 1)
     ('segmented', 8, True, 0.5)
     """
@@ -342,21 +373,24 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     frame_sorted = observations.frame[by_frame]
     window_frames = WINDOW_FRAMES if window_frames is None else window_frames
     overlap_frames = WINDOW_OVERLAP if overlap_frames is None else overlap_frames
-    spans = segment_windows(F, window_frames, overlap_frames)
     windows: list[_Window] = []
     breaks: list[str] = []
-    chains = 0
-    relaxed = _relaxed(settings)
-    retried = 0
-    for k, (start, stop) in enumerate(spans):
+    chains = retried = 0
+    start = 0
+    while True:
+        stop = window_stop(start, F, window_frames, overlap_frames)
         previous = windows[-1] if windows and windows[-1].failure is None else None
-        window, fit, why = _window_in_chain(observations, by_frame, frame_sorted, K, settings, start, stop, previous,
-                                            timings)
-        if why is not None:  # most often the growth stalled at a weak frame: once more with lower thresholds
-            retried += 1
-            again = _window_in_chain(observations, by_frame, frame_sorted, K, relaxed, start, stop, previous, timings)
-            if again[2] is None or (window.failure is not None and again[0].failure is None):
-                window, fit, why = again
+        fallback = None  # when no attempt chains: the first that was reconstructed begins a new chain
+        for span, how in _attempts(start, stop, overlap_frames, settings):
+            window, fit, why = _window_in_chain(observations, by_frame, frame_sorted, K, how, *span, previous, timings)
+            if why is None:
+                break
+            if fallback is None or (fallback[0].failure is not None and window.failure is None):
+                fallback = (window, fit, why)
+        else:
+            assert fallback is not None
+            window, fit, why = fallback
+        retried += fallback is not None
         if why is not None:
             breaks.append(why)
         if window.failure is None:
@@ -367,7 +401,10 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
             window.chain = chains - 1
         windows.append(window)
         if progress is not None:
-            progress(k + 1, len(spans))
+            progress(window.stop, F)
+        if window.stop >= F:
+            break
+        start = window.stop - overlap_frames
     done = [w for w in windows if w.failure is None]
     if not done:
         raise NotEnoughDataError(f"no window of {window_frames} frames could be reconstructed: "
@@ -383,7 +420,7 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     translations = -np.einsum("fij,fj->fi", rotations, centres)
     rec, every = _fuse_points(observations, K, rotations, translations, registered, settings)
     timings["fusion"] = time.perf_counter() - began
-    warnings = [f"reconstructed in {len(spans)} windows of {min(window_frames, F)} frames overlapping by "
+    warnings = [f"reconstructed in {len(windows)} windows of up to {min(window_frames, F)} frames overlapping by "
                 f"{overlap_frames}, chained by similarities (no loop closure: scale and orientation drift along the "
                 "sequence); the points are fused with the chained cameras taken as exact"]
     if chains > 1:
@@ -393,8 +430,8 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     elif breaks:
         warnings.append("; ".join(breaks[:5]))
     if retried:
-        warnings.append(f"{retried} windows were reconstructed again with lower registration thresholds "
-                        "(growth had stalled, or they did not chain)")
+        warnings.append(f"{retried} windows were tried again (lower registration thresholds, then a shorter span): "
+                        "a growth that stalled, a wrong initial pair, or a window that did not chain")
     missing = np.flatnonzero(~registered)
     if missing.size:
         warnings.append(f"{missing.size} of {F} frames have no camera")
