@@ -9,6 +9,7 @@ from kalmansfm.errors import InvalidInputError, NotEnoughDataError
 from kalmansfm.scenes.perspective import sliding_sequence
 from kalmansfm.structure import Observations
 from kalmansfm.structure.geometry.alignment import align_similarity
+from kalmansfm.structure.perspective import PerspectiveSettings
 from kalmansfm.structure.perspective import segmented
 from kalmansfm.structure.perspective.segmented import (
     SEGMENTED_GAUGE,
@@ -153,3 +154,10 @@ def test_a_sequence_cut_in_two_keeps_its_longer_part_and_says_where_it_broke():
     assert any("broke 1 times" in w and "could not be chained" in w for w in rec.warnings)
     assert any("tried again (lower registration thresholds, then a shorter span)" in w for w in rec.warnings)
     assert np.isnan(rec.points[after & ~before]).all() and rec.reconstructed[before].mean() > 0.8
+
+
+def test_the_recursive_method_is_not_used_for_windows_and_the_result_says_so():
+    s = sliding_sequence(120, 360, seed=6)
+    rec = reconstruct_segmented(s.observations, s.cameras.decompose().intrinsics, PerspectiveSettings(method="recursive"),
+                                window_frames=70, overlap_frames=20)
+    assert rec.registered.sum() > 100 and any("batch method, not 'recursive'" in w for w in rec.warnings)

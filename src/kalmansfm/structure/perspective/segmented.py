@@ -82,7 +82,7 @@ CHAIN_MAX_RELATIVE_RMS = 0.03
 #: fewer than :data:`MIN_WINDOW_POINT_SHARE` of its tracks seen twice (a wrong initial pair leaves a few points).
 MIN_WINDOW_FRAME_SHARE = 0.5
 MIN_WINDOW_POINT_SHARE = 0.3
-_TRIM_ROUNDS = 5
+_TRIM_ROUNDS = 5  # refits of the chain's similarity at most (the inliers settle in two or three)
 
 def fits_dense_reconstruction(shape: tuple[int, int]) -> bool:
     """Whether tracks of ``shape`` (frames, tracks) are reconstructed as one dense problem, not in windows.
@@ -236,9 +236,9 @@ def _reconstruct_window(observations: Observations, by_frame: np.ndarray, frame_
     except NotEnoughDataError as exc:
         window.failure = str(exc)
         return window
-    registered, ok = int(rec.registered.sum()), int(rec.reconstructed.sum())
-    if registered < MIN_WINDOW_FRAME_SHARE * (stop - start) or ok < MIN_WINDOW_POINT_SHARE * tracks.size:
-        window.failure = f"only {registered} of {stop - start} frames registered and {ok} of {tracks.size} tracks"
+    n_registered, n_ok = int(rec.registered.sum()), int(rec.reconstructed.sum())
+    if n_registered < MIN_WINDOW_FRAME_SHARE * (stop - start) or n_ok < MIN_WINDOW_POINT_SHARE * tracks.size:
+        window.failure = f"only {n_registered} of {stop - start} frames registered and {n_ok} of {tracks.size} tracks"
         return window
     for name, seconds in rec.timings.items():
         timings[name] = timings.get(name, 0.0) + seconds
@@ -328,8 +328,8 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     observations : Observations of shape (F, P) — one entry per observation (frame index, track
         index, pixel position), e.g. from a tracks file read per observation.
     intrinsics : (3, 3) or (F, 3, 3) — K of every frame.
-    settings : PerspectiveSettings, optional — how each window is reconstructed; its outlier
-        probability is also the final fusion's.
+    settings : PerspectiveSettings, optional — how each window is reconstructed (always by the
+        batch method); its outlier probability is also the final fusion's.
     window_frames, overlap_frames : the windows (:func:`window_stop`; default :data:`WINDOW_FRAMES`
         and :data:`WINDOW_OVERLAP`).
     progress : called after each window with (frames reached, frames), e.g. for a progress bar.
@@ -363,7 +363,11 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
         raise InvalidInputError(f"observations must be Observations (one entry per observation); got "
                                 f"{type(observations).__name__}")
     settings = PerspectiveSettings() if settings is None else settings
-    F, P = observations.shape
+    notes = [] if settings.method == "batch" else [
+        f"the windows were reconstructed by the batch method, not {settings.method!r} (which needs parallax between "
+        "consecutive frames and gives no camera covariances)"]
+    settings = replace(settings, method="batch")
+    F = observations.shape[0]
     if F < 2:
         raise NotEnoughDataError(f"a reconstruction needs >= 2 frames; got {F}")
     K = validate_intrinsics(intrinsics, F)
@@ -423,7 +427,7 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     timings["fusion"] = time.perf_counter() - began
     warnings = [f"reconstructed in {len(windows)} windows of up to {min(window_frames, F)} frames overlapping by "
                 f"{overlap_frames}, chained by similarities (no loop closure: scale and orientation drift along the "
-                "sequence); the points are fused with the chained cameras taken as exact"]
+                "sequence); the points are fused with the chained cameras taken as exact", *notes]
     if chains > 1:
         warnings.append(f"the chain of windows broke {chains - 1} times; kept the longest chained part, frames "
                         f"{first.start}-{max(w.stop for w in done if w.chain == kept) - 1}: " + "; ".join(breaks[:5])
