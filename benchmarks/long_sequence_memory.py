@@ -13,7 +13,8 @@ mismatches — and runs each command on it in a child process, reporting the chi
 memory (``ru_maxrss``), its wall time and exit code: ``kalmansfm fuse`` (with the cameras), affine
 ``kalmansfm reconstruct`` and ``reconstruct --camera perspective --intrinsics K.csv``.  The
 issue's target: each finishes within 2 GB.  The fused points are scored against the truth (median
-error in % of the mean depth) and by their NEES.
+error in % of the mean depth) and by their NEES; the perspective cameras (reconstructed in windows)
+against the true ones after one similarity: centre and rotation errors, and the scale drift.
 """
 
 from __future__ import annotations
@@ -31,7 +32,10 @@ import numpy as np
 
 from kalmansfm.io.cameras import cameras_csv
 from kalmansfm.io.intrinsics import intrinsics_csv
+from kalmansfm.io.reconstruction import read_reconstruction
 from kalmansfm.io.structure import read_points_table
+from kalmansfm.structure import Reconstruction
+from kalmansfm.structure.geometry.alignment import align_similarity
 from kalmansfm.structure.geometry.pinhole import CameraSet
 
 FOCAL, WIDTH, HEIGHT = 800.0, 640, 480
@@ -62,14 +66,35 @@ def make_sequence(frames: int, tracks: int, seed: int = 0) -> tuple[np.ndarray, 
     return np.c_[frame[order], track[order]], xy[order], cams, points
 
 
-def write_inputs(folder: Path, frames: int, tracks: int) -> tuple[np.ndarray, int]:
+def write_inputs(folder: Path, frames: int, tracks: int) -> tuple[np.ndarray, CameraSet, int]:
     index, xy, cams, points = make_sequence(frames, tracks)
     with open(folder / "tracks.csv", "w") as handle:
         handle.write("frame,track_id,x,y\n")
         np.savetxt(handle, np.c_[index, xy], fmt=["%d", "%d", "%.4f", "%.4f"], delimiter=",")
     (folder / "cameras.csv").write_text(cameras_csv(cams))
     (folder / "K.csv").write_text(intrinsics_csv(np.arange(frames), cams.decompose().intrinsics))
-    return points, len(xy)
+    return points, cams, len(xy)
+
+
+def perspective_score(rec: Reconstruction, cams: CameraSet, points: np.ndarray, span: int = 100) -> str:
+    """Cameras against the truth after one similarity (fitted on the camera centres and the points): errors and drift."""
+    frames = rec.frame_ids[rec.registered]
+    ok = rec.reconstructed
+    n = frames.size
+    fit = align_similarity(np.concatenate([rec.centres[rec.registered], rec.points[ok]]),
+                           np.concatenate([cams.centers[frames], points[rec.track_ids[ok]]]))
+    centres = fit.aligned[:n]
+    error = np.linalg.norm(centres - cams.centers[frames], axis=1)
+    path = np.sum(np.linalg.norm(np.diff(cams.centers[frames], axis=0), axis=1))
+    turned = rec.rotations[rec.registered] @ fit.rotation.T @ np.swapaxes(cams.decompose().rotations[frames], 1, 2)
+    angle = np.degrees(np.arccos(np.clip((np.trace(turned, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    # scale drift: each span of frames' length against the truth, in the one aligned frame
+    a = np.flatnonzero(np.isin(frames + span, frames))
+    b = np.searchsorted(frames, frames[a] + span)
+    ratio = np.linalg.norm(centres[b] - centres[a], axis=1) / np.linalg.norm(cams.centers[frames[b]] - cams.centers[frames[a]], axis=1)
+    return (f"#   {n} of {rec.n_frames} frames registered; centre error median {np.median(error):.3g} m, max "
+            f"{error.max():.3g} m (path {path:.4g} m); rotation error median {np.median(angle):.3g} deg, max "
+            f"{angle.max():.3g} deg; scale of {span}-frame spans {ratio.min():.3f}-{ratio.max():.3f} of the truth's")
 
 
 def run(args: list[str]) -> tuple[int, float, float, str]:
@@ -96,7 +121,7 @@ def main() -> None:
     folder.mkdir(parents=True, exist_ok=True)
     try:
         started = time.perf_counter()
-        points, n_obs = write_inputs(folder, args.frames, args.tracks)
+        points, cams, n_obs = write_inputs(folder, args.frames, args.tracks)
         print(f"# {args.frames} frames x {args.tracks} tracks, {n_obs} observations "
               f"({n_obs / (args.frames * args.tracks):.3%} of frames x tracks); tracks.csv "
               f"{(folder / 'tracks.csv').stat().st_size / 1e6:.0f} MB, written in {time.perf_counter() - started:.1f} s; "
@@ -119,6 +144,8 @@ def main() -> None:
                 error = np.linalg.norm(table.points[ok] - points[table.track_ids[ok]], axis=1)
                 print(f"#   fused {ok.sum()} of {len(table.track_ids)} points; median error "
                       f"{np.median(error) / np.mean(points[:, 2]):.4%} of the mean depth")
+            if name == "perspective" and code == 0:
+                print(perspective_score(read_reconstruction(out / "reconstruction.npz"), cams, points))
     finally:
         if args.keep is None:
             shutil.rmtree(folder, ignore_errors=True)

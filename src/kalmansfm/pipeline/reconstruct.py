@@ -15,13 +15,16 @@ import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from tqdm import tqdm
+
 from .._version import __version__
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
-from ..io.tracks import read_tracks
-from ..structure import Reconstruction
+from ..io.tracks import TrackObservations, read_track_observations, read_tracks
+from ..structure import Observations, Reconstruction
 from ..structure.perspective import reconstruct_perspective
+from ..structure.perspective.segmented import fits_dense_reconstruction, reconstruct_segmented
 from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, reconstruction_metrics
 from .perspective import resolve_intrinsics
@@ -38,11 +41,13 @@ class ReconstructRun:
     """The observations used, the reconstruction written and the summary of one ``reconstruct`` run.
 
     ``reconstruction`` is the model written; with an :class:`~kalmansfm.pipeline.requests.Auto`
-    camera ``alternative`` is the other one (None otherwise, or when it was impossible).
+    camera ``alternative`` is the other one (None otherwise, or when it was impossible).  ``tracks``
+    are per observation (:class:`~kalmansfm.io.tracks.TrackObservations`) when a long sequence
+    was reconstructed in windows.
     """
 
     out_dir: Path
-    tracks: Tracks
+    tracks: Tracks | TrackObservations
     reconstruction: Reconstruction
     summary: RunSummary
     alternative: Reconstruction | None = None
@@ -150,6 +155,10 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     check_output_directory(request.out, inputs=inputs)
     clock = Stopwatch()
     name = request.tracks.name
+    if isinstance(camera, Perspective) and not request.smooth and request.tracks.suffix.lower() != ".npz":
+        observed = read_track_observations(request.tracks)  # a tracker's npz is read densely (and smoothed)
+        if not fits_dense_reconstruction((observed.frames.size, observed.track_ids.size)):
+            return _run_segmented(request, camera, observed, inputs, clock)
     if perspective is None:
         tracks = read_tracks_for_factorization(request.tracks, smooth=request.smooth)
     else:
@@ -195,3 +204,28 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
                                          image_size=tracks.image_size)
         summary = stage_summary(out, summary, clock, names)
     return ReconstructRun(request.out, tracks, chosen, summary, other)
+
+
+def _run_segmented(request: ReconstructRequest, camera: Perspective, observed: TrackObservations,
+                   inputs: list[Path | None], clock: Stopwatch) -> ReconstructRun:
+    """A long sequence, too large for one dense reconstruction, reconstructed in windows (per observation throughout)."""
+    K, source = resolve_intrinsics(observed.frames, camera, observed.image_size)
+    made_from = run_source(request.tracks, [p for p in inputs if p is not None], request_options(request))
+    log.info("read %d frames x %d tracks (%d observations) from %s: reconstructed in windows of frames",
+             observed.frames.size, observed.track_ids.size, observed.frame.size, request.tracks)
+    observations = Observations.from_sparse((observed.frames.size, observed.track_ids.size), observed.frame,
+                                            observed.track, observed.xy)
+    with clock.step("perspective reconstruction"):
+        with tqdm(total=observed.frames.size, desc="windows of frames", unit="frame", disable=not request.progress,
+                  leave=False) as bar:
+            rec = reconstruct_segmented(observations, K, camera.settings, progress=lambda done, _: bar.update(done - bar.n))
+    rec = rec.with_ids(observed.frames, observed.track_ids)
+    metrics = reconstruction_metrics(rec, intrinsics=source)
+    summary = RunSummary(command="reconstruct", input=str(request.tracks), source=made_from, smoothed=False,
+                         reconstruction=metrics)
+    with output_directory(request.out, inputs=inputs) as out:
+        with clock.step("writing"):
+            names = stage_reconstruction(out, rec, comment=f"kalmansfm {__version__} from {request.tracks.name}",
+                                         plot=request.plot, image_size=observed.image_size)
+        summary = stage_summary(out, summary, clock, names)
+    return ReconstructRun(request.out, observed, rec, summary)

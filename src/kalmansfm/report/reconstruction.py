@@ -26,6 +26,8 @@ _MODELS = {
     ("fusion", "pairs"): "known cameras: the report's fusion of consecutive two-view triangulations (pairs)",
     ("perspective", "batch"): "calibrated cameras, unknown motion: bundle adjustment (batch)",
     ("perspective", "recursive"): "calibrated cameras, unknown motion: relative orientations + recursive fusion",
+    ("perspective", "segmented"): "calibrated cameras, unknown motion: bundle adjustment in windows of frames, "
+                                  "chained by similarities, then fusion with the chained cameras (segmented)",
 }
 _FIGURES = (
     ("fusion.png", "Each point's uncertainty as views are fused: median and quartiles over points, "

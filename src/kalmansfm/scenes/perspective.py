@@ -20,10 +20,11 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .._validation import check_count, check_positive
-from ..structure.geometry.pinhole import intrinsic_matrices
+from ..structure.geometry.pinhole import CameraSet, intrinsic_matrices
+from ..structure.reconstruction import Observations
 from ._arc import arc_centres, look_at, mismatches
 
-__all__ = ["PerspectiveScene", "perspective_scene"]
+__all__ = ["PerspectiveScene", "SlidingSequence", "perspective_scene", "sliding_sequence"]
 
 
 @dataclass(frozen=True)
@@ -143,3 +144,63 @@ def perspective_scene(
     viewing = float(np.mean(np.linalg.norm(centres - X.mean(axis=0), axis=1)))
     return PerspectiveScene(obs, np.repeat(K[None], F, axis=0), rotations, centres, X, outliers, sigma,
                             viewing, (width, height))
+
+
+@dataclass(frozen=True)
+class SlidingSequence:
+    """Ground truth and observations (one entry each) of a long video-like sequence of short tracks.
+
+    Attributes
+    ----------
+    observations : :class:`~kalmansfm.structure.Observations` of shape (frames, tracks).
+    cameras : the true cameras (K [R | t] per frame).
+    points : (P, 3) true points.
+    outliers : (N,) bool — which observations are gross mismatches.
+    """
+
+    observations: Observations
+    cameras: CameraSet
+    points: np.ndarray
+    outliers: np.ndarray
+
+
+def sliding_sequence(frames: int, tracks: int, *, step: float = 0.02, mean_track_length: float = 17.0,
+                     pixel_std: float = 0.5, outlier_fraction: float = 0.01, seed: int = 0) -> SlidingSequence:
+    """A camera sliding sideways (``step`` metres a frame, a gentle sway and yaw) past a wall of points 4–8 m away.
+
+    Each track is seen in a run of consecutive frames of geometric length (mean about
+    ``mean_track_length``), with Gaussian noise of ``pixel_std`` pixels and a share
+    ``outlier_fraction`` of gross mismatches (20–40 px off); 640 × 480 images, focal 800 px.
+    The scene of a long video's many short tracks (issue 29), held per observation.
+
+    Examples
+    --------
+    >>> s = sliding_sequence(200, 300, seed=1)
+    >>> s.observations.shape, len(s.observations) > 200 * 20, s.cameras.matrices.shape
+    ((200, 300), True, (200, 3, 4))
+    """
+    frames, tracks = check_count("frames", frames, 2), check_count("tracks", tracks, 1)
+    rng = np.random.default_rng(seed)
+    width, height, focal = 640, 480, 800.0
+    K = np.array([[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1]])
+    f = np.arange(frames)
+    centres = np.stack([step * f, 0.05 * np.sin(f / 40), np.zeros(frames)], axis=1)
+    yaw = 0.05 * np.sin(f / 60)
+    R = np.zeros((frames, 3, 3))
+    R[:, 0, 0], R[:, 0, 2], R[:, 1, 1], R[:, 2, 0], R[:, 2, 2] = np.cos(yaw), -np.sin(yaw), 1, np.sin(yaw), np.cos(yaw)
+    cams = CameraSet.from_pose(K, R, -np.einsum("fij,fj->fi", R, centres))
+    length = np.minimum(rng.geometric(1 / mean_track_length, size=tracks) + 1, frames)
+    start = rng.integers(0, frames - length + 1)
+    depth = rng.uniform(4.0, 8.0, size=tracks)
+    middle = step * (start + length / 2)
+    points = np.stack([middle + rng.uniform(-0.5, 0.5, tracks) * 0.35 * depth * width / focal,
+                       rng.uniform(-0.3, 0.3, tracks) * depth, depth], axis=1)
+    track = np.repeat(np.arange(tracks), length)
+    frame = np.concatenate([np.arange(s, s + n) for s, n in zip(start.tolist(), length.tolist())])
+    h = np.einsum("nij,nj->ni", cams.matrices[frame], np.c_[points[track], np.ones(track.size)])
+    xy = h[:, :2] / h[:, 2:] + rng.normal(scale=pixel_std, size=(track.size, 2))
+    wild = rng.random(track.size) < outlier_fraction
+    xy[wild] += rng.uniform(20, 40, size=(int(wild.sum()), 2)) * rng.choice([-1, 1], size=(int(wild.sum()), 2))
+    order = np.lexsort((track, frame))
+    observations = Observations.from_sparse((frames, tracks), frame[order], track[order], xy[order])
+    return SlidingSequence(observations, cams, points, wild[order])

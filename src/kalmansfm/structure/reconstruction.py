@@ -42,6 +42,7 @@ __all__ = [
     "FREE_NETWORK_GAUGE",
     "KNOWN_CAMERAS_GAUGE",
     "RECONSTRUCTION_KINDS",
+    "SEGMENTED_GAUGE",
     "AffineDetails",
     "FrameStatus",
     "FusionDetails",
@@ -65,6 +66,12 @@ KNOWN_CAMERAS_GAUGE = "world frame of the given cameras (the cameras taken as ex
 #: how a calibrated reconstruction's covariances are to be read.
 FREE_NETWORK_GAUGE = ("free-network gauge: the covariance of each point after a least-squares similarity "
                       "alignment (translation, rotation, scale) of all reconstructed points onto any reference")
+#: how the covariances of a calibrated reconstruction made in windows of frames are to be read
+#: (:func:`~kalmansfm.structure.perspective.segmented.reconstruct_segmented`).
+SEGMENTED_GAUGE = ("cameras of the segmented reconstruction taken as exact: each point's covariance given the "
+                   "chained cameras (it leaves out the cameras' uncertainty and the chain's drift); world frame of "
+                   "the first window's initial pair (its first camera at the origin, unit baseline); the camera "
+                   "covariances are each window's free-network ones carried into that frame")
 
 
 class FrameStatus(LabelledEnum):

@@ -150,6 +150,7 @@ class _Incremental:
         self.inlier = self.seen.copy()
         self.frame_status = np.full(self.F, FrameStatus.NOT_CONNECTED, dtype=np.int8)
         self.failed_at = np.zeros(self.F)
+        self.newest = -1  # the frame registered last
         self.last_global = 0
         self.threshold = settings.outlier_threshold_px
         self.timings: dict[str, float] = {}
@@ -301,6 +302,7 @@ class _Incremental:
             R = cv2.Rodrigues(rvec)[0]
             self.R[f], self.C[f] = R, camera_centres(R, tvec.ravel())
             self.frame_status[f] = FrameStatus.REGISTERED
+            self.newest = f
             outliers = np.setdiff1d(np.arange(len(tracks)), inl)
             self.inlier[f, tracks[outliers]] = False
             self._timed("registration", start)
@@ -311,7 +313,9 @@ class _Incremental:
     def grow(self) -> None:
         while self.register_next():
             frames = np.flatnonzero(self.registered)
-            waiting = ~self.has_point & ((self.seen & self.inlier)[frames].sum(axis=0) >= 2)
+            # tracks the new frame sees: the others' observations have not changed since they were last tried
+            # (the refinement re-estimates every track)
+            waiting = ~self.has_point & self.seen[self.newest] & ((self.seen & self.inlier)[frames].sum(axis=0) >= 2)
             self._triangulate(np.flatnonzero(waiting))
             if len(frames) >= _GLOBAL_BUNDLE_GROWTH * self.last_global:
                 self._bundle("huber", _GROWTH_TOLERANCE)
@@ -325,6 +329,9 @@ class _Incremental:
         frames = np.flatnonzero(self.registered)
         if len(tracks) == 0:
             return
+        # only the frames that see these tracks: a long sequence of short tracks leaves most of the others empty
+        seeing = frames[self.seen[np.ix_(frames, tracks)].any(axis=1)]
+        frames = seeing if len(seeing) >= 2 else frames
         use = self.seen[np.ix_(frames, tracks)]
         if not readmit:
             use &= self.inlier[np.ix_(frames, tracks)]

@@ -30,6 +30,7 @@ __all__ = [
     "FrameStatus",
     "PerspectiveSettings",
     "perspective_reconstruction",
+    "validate_intrinsics",
     "validate_tracks_and_intrinsics",
 ]
 
@@ -175,6 +176,18 @@ def validate_tracks_and_intrinsics(observations: object, intrinsics: object) -> 
         f, p = np.argwhere(partial | np.isinf(obs).any(axis=2))[0]
         raise InvalidInputError(f"observations must be finite (x, y) or NaN in both; frame {f}, point {p} "
                                 f"is {obs[f, p].tolist()}")
+    return obs, validate_intrinsics(intrinsics, F)
+
+
+def validate_intrinsics(intrinsics: object, n_frames: int) -> np.ndarray:
+    """Check (3, 3) or (F, 3, 3) intrinsics of ``n_frames`` frames; return K per frame as (F, 3, 3) floats.
+
+    Examples
+    --------
+    >>> validate_intrinsics(np.eye(3), 4).shape
+    (4, 3, 3)
+    """
+    F = n_frames
     K = as_float_array("intrinsics", intrinsics)
     if K.shape == (3, 3):
         K = np.repeat(K[None], F, axis=0)
@@ -190,7 +203,7 @@ def validate_tracks_and_intrinsics(observations: object, intrinsics: object) -> 
         f = int(np.flatnonzero(bad)[0])
         raise InvalidInputError(f"intrinsics of frame {f} must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 "
                                 f"(a singular or malformed K); got {K[f].tolist()}")
-    return obs, K
+    return K
 
 
 def residual_rms_per_point(observations: np.ndarray, intrinsics: np.ndarray, rotations: np.ndarray,
