@@ -19,8 +19,10 @@ from .._version import __version__
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
-from ..io.tracks import read_tracks
+from ..io.tracks import TrackObservations, read_track_observations, read_tracks
 from ..structure import Reconstruction
+from ..structure.affine.segmented import factorize_segmented, fits_densely
+from ..structure.reconstruction import Observations
 from ..structure.perspective import reconstruct_perspective
 from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, reconstruction_metrics
@@ -38,11 +40,13 @@ class ReconstructRun:
     """The observations used, the reconstruction written and the summary of one ``reconstruct`` run.
 
     ``reconstruction`` is the model written; with an :class:`~kalmansfm.pipeline.requests.Auto`
-    camera ``alternative`` is the other one (None otherwise, or when it was impossible).
+    camera ``alternative`` is the other one (None otherwise, or when it was impossible).  ``tracks`` are
+    the observations as read: :class:`~kalmansfm.io.tracks.TrackObservations` when the affine camera
+    factorized a file too many frames × tracks for dense arrays in windows.
     """
 
     out_dir: Path
-    tracks: Tracks
+    tracks: Tracks | TrackObservations
     reconstruction: Reconstruction
     summary: RunSummary
     alternative: Reconstruction | None = None
@@ -150,6 +154,10 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     check_output_directory(request.out, inputs=inputs)
     clock = Stopwatch()
     name = request.tracks.name
+    if isinstance(camera, Affine) and request.tracks.suffix.lower() != ".npz":
+        observed = read_track_observations(request.tracks)
+        if not fits_densely((observed.frames.size, observed.track_ids.size)):
+            return _reconstruct_segmented(request, observed, inputs, clock)
     if perspective is None:
         tracks = read_tracks_for_factorization(request.tracks, smooth=request.smooth)
     else:
@@ -195,3 +203,26 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
                                          image_size=tracks.image_size)
         summary = stage_summary(out, summary, clock, names)
     return ReconstructRun(request.out, tracks, chosen, summary, other)
+
+
+def _reconstruct_segmented(request: ReconstructRequest, observed: TrackObservations, inputs: list[Path],
+                           clock: Stopwatch) -> ReconstructRun:
+    """The affine run of tracks too many frames × tracks for dense arrays: factorized in windows, held sparsely."""
+    if request.smooth:
+        raise InvalidInputError(f"cannot smooth the tracks: {request.tracks} holds no tracker states and covariances "
+                                "(smoothing needs the tracker's tracks.npz)")
+    log.info("read %d observations over %d frames x %d tracks from %s: factorized in windows", len(observed.xy),
+             observed.frames.size, observed.track_ids.size, request.tracks)
+    shape = (observed.frames.size, observed.track_ids.size)
+    with clock.step("factorization"):
+        rec = factorize_segmented(Observations.from_sparse(shape, observed.frame, observed.track, observed.xy))
+    rec = rec.with_ids(observed.frames, observed.track_ids)
+    made_from = run_source(request.tracks, inputs, request_options(request))
+    summary = RunSummary(command="reconstruct", input=str(request.tracks), source=made_from, settings=None,
+                         smoothed=False, reconstruction=reconstruction_metrics(rec, smoothed=False))
+    with output_directory(request.out, inputs=inputs) as out:
+        with clock.step("writing"):
+            names = stage_reconstruction(out, rec, comment=f"kalmansfm {__version__} from {request.tracks.name}",
+                                         plot=request.plot, image_size=observed.image_size)
+        summary = stage_summary(out, summary, clock, names)
+    return ReconstructRun(request.out, observed, rec, summary)

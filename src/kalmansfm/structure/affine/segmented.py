@@ -1,0 +1,576 @@
+"""Factorization of a long sequence of short tracks, its observations held one entry per observation.
+
+A dense (frames × points) array of a ten-minute sequence of short tracks is tens of gigabytes
+though its observations fit in a few hundred megabytes.  This fits the same model as
+:mod:`~kalmansfm.structure.affine.factorization`, x_fp = M_f S_p + t_f, without that array:
+
+1. *windows* — the frames are cut into windows of :data:`WINDOW_FRAMES` frames overlapping by
+   :data:`WINDOW_OVERLAP`; the tracks seen in at least :data:`_WINDOW_VIEWS` frames of a window
+   form a small dense problem, fitted by the dense code's missing-data path up to its affine
+   factors (before the metric upgrade); an observation farther than :data:`OUTLIER_SIGMAS`
+   robust σ from the window's fit is dropped and the window refitted once;
+2. *chaining* — each window's affine shape is mapped into the frame of the points already
+   placed by the windows before it by a 3-D affine transform (12 numbers), fitted by least
+   squares to the points they share, dropping shared points that do not follow it; the
+   window's motion and translations follow the same transform;
+3. *polish* — alternating least squares over all observations: every point's 3 × 3 and every
+   frame's 4 × 4 normal equations summed with ``np.bincount`` over the observation arrays
+   (:func:`point_normal_equations`, :func:`frame_normal_equations`), until the cost changes by
+   less than :data:`POLISH_TOL` (relative); frames and points not reached by the windows join
+   as soon as they are determined;
+4. *outliers* — after the polish every observation farther than :data:`OUTLIER_SIGMAS` robust σ
+   is rejected (re-admitted when it fits again) and the polish repeated, until the rejected
+   set stops changing (at most :data:`_REJECTION_ROUNDS` rounds).  The dense path rejects
+   nothing; on data without gross errors the two agree;
+5. one metric upgrade over all camera rows (:func:`~.factorization.metric_frame`), then each
+   point's covariance σ̂² (Σ_f M_fᵀ M_f)⁻¹ over its own frames, σ̂ from the residuals with the
+   degrees of freedom counted, and its verdict (:func:`~.uncertainty.judge_points`).
+
+Memory follows the observations: a few arrays of N × 16 numbers at a time, nothing of
+frames × points.  The chained windows' small errors add up along the sequence as a slowly
+varying affine distortion that the reprojections barely see (each stretch of frames is
+consistent in itself), so the polish corrects it only slowly; the metric upgrade of a long
+sequence is the check on it.  No singular values of the whole measurement matrix are computed
+(there is none), so the dense path's rank check is not made.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import NotEnoughDataError
+from ..reconstruction import AFFINE_GAUGE, AffineDetails, NoiseEstimate, Observations, Reconstruction
+from . import factorization
+from .factorization import metric_frame, single_threaded_blas
+from .reconstruct import affine_cameras
+from .uncertainty import GAUGE_PARAMETERS, MAX_STD_RATIO, MIN_VIEWS, judge_points
+
+__all__ = ["DENSE_ENTRIES", "OUTLIER_SIGMAS", "POLISH_ITERATIONS", "POLISH_TOL", "WINDOW_FRAMES", "WINDOW_OVERLAP",
+           "FrameSystems", "PointSystems", "factorize_segmented", "fits_densely", "frame_normal_equations",
+           "point_normal_equations"]
+
+#: Observations over more than this many (frames × points) entries are factorized in windows
+#: (:func:`factorize_segmented`), not as one dense array (8 bytes × 2 coordinates an entry, and the
+#: dense fit's copies).
+DENSE_ENTRIES = 20_000_000
+#: Frames per window, and frames shared by consecutive windows (the tracks seen in both chain them).
+WINDOW_FRAMES = 64
+WINDOW_OVERLAP = 32
+#: An observation farther from the fit than this many robust σ (the median residual length / √(2 ln 2),
+#: the Rayleigh median) is rejected as an outlier: 1 in 3 000 of Gaussian observations is.
+OUTLIER_SIGMAS = 4.0
+#: The polish's iteration cap and relative stopping tolerance on the cost.
+POLISH_ITERATIONS = 100
+POLISH_TOL = 1e-7
+
+# A track takes part in a window when seen in at least this many of its frames.
+_WINDOW_VIEWS = 3
+# A window's own fit: iteration cap and tolerance of the dense ALS.
+_WINDOW_ITERATIONS = 100
+_WINDOW_TOL = 1e-9
+# Points shared with those already placed needed to chain a window, and the cut (in median residuals)
+# beyond which a shared point does not follow the transform.  Only points seen in at least _CHAIN_VIEWS
+# frames of both windows chain them when there are enough: a least-squares transform fitted to noisy
+# shapes shrinks the poorly seen directions (regression dilution), and chained transforms compound it.
+_MIN_SHARED = 12
+_CHAIN_VIEWS = 6
+# Frames shared with the chain from which a window is chained by its camera rows (each estimated from all
+# the points a frame sees, so much less noisy than a shape seen in a few frames) rather than by its points.
+_MIN_SHARED_FRAMES = 8
+_CHAIN_CUT = 3.0
+# A window's point farther from the median point than this many times the median distance, measured in the
+# shape's own principal axes (the affine gauge of a window can be stretched anyhow), is not kept.
+_FAR_POINT = 6.0
+# No residual shorter than this is an outlier, however small σ̂ (exact data).
+_MIN_OUTLIER_PX = 0.01
+_RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
+_REJECTION_ROUNDS = 3
+# A normal matrix whose smallest / largest eigenvalue is below this is not solved (the unknown is left out).
+_CONDITION = 1e-15
+
+
+def fits_densely(shape: tuple[int, int]) -> bool:
+    """Whether observations over ``shape`` (frames, points) are factorized as one dense array.
+
+    Examples
+    --------
+    >>> fits_densely((600, 5000)), fits_densely((20000, 50047))
+    (True, False)
+    """
+    frames, points = shape
+    return frames * points <= DENSE_ENTRIES
+
+
+@dataclass(frozen=True)
+class PointSystems:
+    """Every point's least-squares system given the frames: ``normal`` (P, 3, 3) Σ M_fᵀ M_f, ``rhs`` (P, 3)
+    Σ M_fᵀ (x_fp − t_f), ``count`` (P,) the observations summed."""
+
+    normal: np.ndarray
+    rhs: np.ndarray
+    count: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameSystems:
+    """Every frame's least-squares system given the points, h = (S_p, 1): ``normal`` (F, 4, 4) Σ h hᵀ,
+    ``rhs`` (F, 4, 2) Σ h x_fpᵀ (one column per image coordinate), ``count`` (F,) the observations summed."""
+
+    normal: np.ndarray
+    rhs: np.ndarray
+    count: np.ndarray
+
+
+def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n, k): the rows of ``values`` (N, k) summed by ``index`` (N,)."""
+    return np.stack([np.bincount(index, weights=values[:, j], minlength=n) for j in range(values.shape[1])], axis=1)
+
+
+def point_normal_equations(motion: np.ndarray, translation: np.ndarray, frame: np.ndarray, point: np.ndarray,
+                           xy: np.ndarray, n_points: int) -> PointSystems:
+    """The normal equations of every point given the frames' ``motion`` (F, 2, 3) and ``translation`` (F, 2).
+
+    Sums over the observations ``frame``, ``point`` (N,) at ``xy`` (N, 2) with no (frames × points) array.
+
+    Examples
+    --------
+    >>> m = np.array([[[1.0, 0, 0], [0, 1, 0]], [[0, 0, 1], [0, 1, 0]]])
+    >>> s = point_normal_equations(m, np.zeros((2, 2)), np.array([0, 1]), np.array([0, 0]), np.array([[1.0, 2], [3, 4]]), 1)
+    >>> s.normal[0].tolist(), s.rhs[0].tolist(), s.count.tolist()
+    ([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 1.0]], [1.0, 6.0, 3.0], [2])
+    """
+    gram = np.einsum("fci,fcj->fij", motion, motion).reshape(-1, 9)
+    normal = _sum_by(point, gram[frame], n_points).reshape(-1, 3, 3)
+    rhs = _sum_by(point, np.einsum("nci,nc->ni", motion[frame], xy - translation[frame]), n_points)
+    return PointSystems(normal, rhs, np.bincount(point, minlength=n_points))
+
+
+def frame_normal_equations(points: np.ndarray, frame: np.ndarray, point: np.ndarray, xy: np.ndarray,
+                           n_frames: int) -> FrameSystems:
+    """The normal equations of every frame's two camera rows and translation given the ``points`` (P, 3).
+
+    Examples
+    --------
+    >>> s = frame_normal_equations(np.eye(3), np.array([0, 0]), np.array([0, 2]), np.array([[1.0, 2], [3, 4]]), 1)
+    >>> s.normal[0].tolist()
+    [[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0], [1.0, 0.0, 1.0, 2.0]]
+    >>> s.rhs[0].tolist(), s.count.tolist()
+    ([[1.0, 2.0], [0.0, 0.0], [3.0, 4.0], [4.0, 6.0]], [2])
+    """
+    h = np.hstack([points[point], np.ones((point.size, 1))])
+    normal = _sum_by(frame, (h[:, :, None] * h[:, None, :]).reshape(-1, 16), n_frames).reshape(-1, 4, 4)
+    rhs = _sum_by(frame, (h[:, :, None] * xy[:, None, :]).reshape(-1, 8), n_frames).reshape(-1, 4, 2)
+    return FrameSystems(normal, rhs, np.bincount(frame, minlength=n_frames))
+
+
+def _solvable(normal: np.ndarray, count: np.ndarray, least: int) -> np.ndarray:
+    """Which systems have ``least`` observations and a well-conditioned normal matrix."""
+    ok = count >= least
+    if ok.any():
+        eig = np.linalg.eigvalsh(normal[ok])
+        ok[ok] = eig[:, 0] > _CONDITION * np.maximum(eig[:, -1], np.finfo(float).tiny)
+    return ok
+
+
+def _solve_points(systems: PointSystems) -> np.ndarray:
+    shape = np.full((systems.count.size, 3), np.nan)
+    ok = _solvable(systems.normal, systems.count, 2)
+    shape[ok] = np.linalg.solve(systems.normal[ok], systems.rhs[ok][..., None])[..., 0]
+    return shape
+
+
+def _solve_frames(systems: FrameSystems) -> tuple[np.ndarray, np.ndarray]:
+    frames = systems.count.size
+    motion, translation = np.full((frames, 2, 3), np.nan), np.full((frames, 2), np.nan)
+    ok = _solvable(systems.normal, systems.count, 4)
+    solution = np.linalg.solve(systems.normal[ok], systems.rhs[ok])  # (n, 4, 2): column c is [m_c | t_c]
+    motion[ok] = solution[:, :3].transpose(0, 2, 1)
+    translation[ok] = solution[:, 3]
+    return motion, translation
+
+
+def _residuals(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, frame: np.ndarray, point: np.ndarray,
+               xy: np.ndarray) -> np.ndarray:
+    """(N,) |M_f S_p + t_f − x| for every observation, NaN where its frame or point is unknown."""
+    predicted = np.einsum("nci,ni->nc", motion[frame], shape[point]) + translation[frame]
+    return np.linalg.norm(predicted - xy, axis=1)
+
+
+def _outlier_threshold(residual: np.ndarray) -> float:
+    """:data:`OUTLIER_SIGMAS` robust σ of the finite residual lengths (at least :data:`_MIN_OUTLIER_PX`)."""
+    finite = residual[np.isfinite(residual)]
+    sigma = float(np.median(finite)) / _RAYLEIGH_MEDIAN if finite.size else 0.0
+    return max(OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_PX)
+
+
+@dataclass(frozen=True)
+class _Window:
+    """A window's affine factors: the frames and points reached (global indices), and the observations it rejected."""
+
+    frames: np.ndarray
+    motion: np.ndarray
+    translation: np.ndarray
+    points: np.ndarray
+    shape: np.ndarray
+    views: np.ndarray
+    rejected: np.ndarray
+
+
+def _fit_window(entries: np.ndarray, frame: np.ndarray, point: np.ndarray, xy: np.ndarray) -> _Window | None:
+    """The affine factors of the observations ``entries`` (one window's), or None when they do not determine them."""
+    _, inverse, counts = np.unique(point[entries], return_inverse=True, return_counts=True)
+    entries = entries[counts[inverse] >= _WINDOW_VIEWS]
+    points, local_p = np.unique(point[entries], return_inverse=True)
+    frames, local_f = np.unique(frame[entries], return_inverse=True)
+    if points.size < 4 or frames.size < 3:
+        return None
+    dense = np.full((frames.size, points.size, 2), np.nan)
+    dense[local_f, local_p] = xy[entries]
+    rejected = np.zeros(entries.size, dtype=bool)
+    for attempt in range(2):
+        try:
+            fit = factorization._general_fit(dense, None, _WINDOW_ITERATIONS, _WINDOW_TOL, 0, [], None)
+        except NotEnoughDataError:
+            return None
+        motion = np.full((frames.size, 2, 3), np.nan)
+        translation = np.full((frames.size, 2), np.nan)
+        shape = np.full((points.size, 3), np.nan)
+        f_index, p_index = np.flatnonzero(fit.use_f)[fit.f_ok], np.flatnonzero(fit.use_p)[fit.p_ok]
+        motion[f_index], translation[f_index] = fit.motion[fit.f_ok], fit.translation[fit.f_ok]
+        shape[p_index] = fit.shape[fit.p_ok]
+        residual = _residuals(motion, translation, shape, local_f, local_p, xy[entries])
+        residual[rejected] = np.nan
+        bad = residual > _outlier_threshold(residual)
+        if attempt or not bad.any():
+            break
+        rejected |= bad
+        dense[local_f[bad], local_p[bad]] = np.nan
+    reached_f, reached_p = np.isfinite(motion).all(axis=(1, 2)), np.isfinite(shape).all(axis=1)
+    # a point its few views barely determine can land anywhere: it would spoil the chaining (the polish places it)
+    reached_p[reached_p] = _central(shape[reached_p])
+    views = np.bincount(local_p[~rejected], minlength=points.size)
+    return _Window(frames[reached_f], motion[reached_f], translation[reached_f], points[reached_p], shape[reached_p],
+                   views[reached_p], entries[rejected])
+
+
+def _affine_from_frames(motion: np.ndarray, translation: np.ndarray, window_motion: np.ndarray,
+                        window_translation: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(A, b) with the chain's cameras in the window's gauge: M_w ≈ M A, t_w ≈ t + M b, over shared frames.
+
+    The rows' least squares both ways, averaged (see :func:`_affine_between`); None when the rows do
+    not span three directions.
+    """
+    rows, window_rows = motion.reshape(-1, 3), window_motion.reshape(-1, 3)
+    spread = np.linalg.svd(rows, compute_uv=False)
+    window_spread = np.linalg.svd(window_rows, compute_uv=False)
+    if not (spread[-1] > 1e-9 * spread[0] and window_spread[-1] > 1e-9 * window_spread[0]):
+        return None
+    forward = np.linalg.lstsq(rows, window_rows, rcond=None)[0]  # window_rows ≈ rows A
+    backward = np.linalg.lstsq(window_rows, rows, rcond=None)[0]  # rows ≈ window_rows A⁻¹
+    a = 0.5 * (forward + np.linalg.inv(backward))
+    b = np.linalg.lstsq(rows, (window_translation - translation).reshape(-1), rcond=None)[0]
+    return a, b
+
+
+def _central(shape: np.ndarray) -> np.ndarray:
+    """(n,) which points of an affine ``shape`` (n, 3) lie within :data:`_FAR_POINT` median whitened distances."""
+    keep = np.ones(len(shape), dtype=bool)
+    for _ in range(3):
+        if keep.sum() < 4:
+            break
+        centred = shape - np.median(shape[keep], axis=0)
+        covariance = np.cov(centred[keep].T) + 1e-300 * np.eye(3)
+        try:
+            whitened = np.linalg.solve(np.linalg.cholesky(covariance), centred.T).T
+        except np.linalg.LinAlgError:
+            break
+        distance = np.linalg.norm(whitened, axis=1)
+        inside = distance <= _FAR_POINT * float(np.median(distance[keep]))
+        if np.array_equal(inside, keep):
+            break
+        keep = inside
+    return keep
+
+
+def _affine_between(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(A, b) with target ≈ A source + b over the points that follow it; None when ill-determined.
+
+    Both shapes are noisy estimates: least squares of target on source shrinks A in the directions
+    where the source is noisy, that of source on target widens A⁻¹ where the target is; their mean
+    cancels the shrinking to first order when the two are about as noisy (they are, each from a
+    window's fit), which chained transforms need (a bias compounds along the sequence).
+    """
+    keep = _central(source) & _central(target)
+    for _ in range(4):
+        if keep.sum() < _MIN_SHARED:
+            return None
+        s_mean, t_mean = source[keep].mean(axis=0), target[keep].mean(axis=0)
+        s_c, t_c = source[keep] - s_mean, target[keep] - t_mean
+        spread_s, spread_t = (np.linalg.svd(c, compute_uv=False) for c in (s_c, t_c))
+        if not (spread_s[-1] > 1e-6 * spread_s[0] and spread_t[-1] > 1e-6 * spread_t[0]):
+            return None
+        forward = np.linalg.lstsq(s_c, t_c, rcond=None)[0].T  # t_c ≈ s_c Aᵀ
+        backward = np.linalg.lstsq(t_c, s_c, rcond=None)[0].T  # s_c ≈ t_c Bᵀ
+        a = 0.5 * (forward + np.linalg.inv(backward))
+        b = t_mean - a @ s_mean
+        distance = np.linalg.norm(source @ a.T + b - target, axis=1)
+        follows = distance <= max(_CHAIN_CUT * float(np.median(distance[keep])), 1e-12 * float(np.abs(target).max()))
+        if np.array_equal(follows, keep):
+            break
+        keep = follows
+    return a, b
+
+
+@dataclass(frozen=True)
+class _Chain:
+    motion: np.ndarray
+    translation: np.ndarray
+    shape: np.ndarray
+    rejected: np.ndarray
+    windows: int
+    chained: int
+
+
+def _chain_windows(frame: np.ndarray, point: np.ndarray, xy: np.ndarray, shape: tuple[int, int]) -> _Chain:
+    """Fit every window and map each into the affine frame of the points placed before it."""
+    n_frames, n_points = shape
+    motion, translation = np.full((n_frames, 2, 3), np.nan), np.full((n_frames, 2), np.nan)
+    points, placed = np.full((n_points, 3), np.nan), np.zeros(n_points, dtype=bool)
+    placed_views = np.zeros(n_points, dtype=np.int64)  # the views of the window that placed each point
+    rejected = np.zeros(frame.size, dtype=bool)
+    by_frame = np.argsort(frame, kind="stable")
+    starts = np.arange(0, max(n_frames - WINDOW_OVERLAP, 1), WINDOW_FRAMES - WINDOW_OVERLAP)
+    chained = 0
+    for start in starts.tolist():
+        lo, hi = np.searchsorted(frame[by_frame], [start, start + WINDOW_FRAMES])
+        window = _fit_window(by_frame[lo:hi], frame, point, xy)
+        if window is None:
+            continue
+        known = np.isfinite(motion[window.frames]).all(axis=(1, 2))
+        if known.sum() >= _MIN_SHARED_FRAMES:
+            transform = _affine_from_frames(motion[window.frames[known]], translation[window.frames[known]],
+                                            window.motion[known], window.translation[known])
+            if transform is None:
+                continue
+            a, b = transform
+        elif placed.any():
+            shared = placed[window.points]
+            well_seen = shared & (window.views >= _CHAIN_VIEWS) & (placed_views[window.points] >= _CHAIN_VIEWS)
+            if well_seen.sum() >= 2 * _MIN_SHARED:
+                shared = well_seen
+            transform = (_affine_between(window.shape[shared], points[window.points[shared]])
+                         if shared.sum() >= _MIN_SHARED else None)
+            if transform is None:
+                continue
+            a, b = transform
+        else:
+            a, b = np.eye(3), np.zeros(3)
+        rejected[window.rejected] = True
+        # what is placed moves into the window's gauge, S_g = A S_w + b: S' = A⁻¹ (S_g − b), M' = M_g A,
+        # t' = t_g + M_g b; the front of the chain is thus always in a window's own, well-conditioned, gauge
+        translation += motion @ b
+        motion = motion @ a
+        points = (points - b) @ np.linalg.inv(a).T
+        new_f = ~np.isfinite(motion[window.frames]).all(axis=(1, 2))
+        motion[window.frames[new_f]] = window.motion[new_f]
+        translation[window.frames[new_f]] = window.translation[new_f]
+        new_p = ~placed[window.points]
+        points[window.points[new_p]] = window.shape[new_p]
+        placed[window.points[new_p]] = True
+        placed_views[window.points[new_p]] = window.views[new_p]
+        chained += 1
+    return _Chain(motion, translation, points, rejected, len(starts), chained)
+
+
+def _whitened(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The same model in the affine gauge where the camera rows' second moments are the identity.
+
+    The chained gauge is the last window's; far from it the rows of a long sequence can be nearly
+    parallel there, and the points' normal equations ill-conditioned.
+    """
+    known = np.isfinite(motion).all(axis=(1, 2))
+    rows = motion[known].reshape(-1, 3)
+    eigenvalues, eigenvectors = np.linalg.eigh(rows.T @ rows / len(rows))
+    root = (eigenvectors * np.sqrt(np.maximum(eigenvalues, np.finfo(float).tiny))) @ eigenvectors.T
+    return motion @ np.linalg.inv(root), translation, shape @ root.T
+
+
+@dataclass(frozen=True)
+class _Polished:
+    motion: np.ndarray
+    translation: np.ndarray
+    shape: np.ndarray
+    iterations: int
+    converged: bool
+
+
+def _polish(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, frame: np.ndarray, point: np.ndarray,
+            xy: np.ndarray, taking_part: np.ndarray) -> _Polished:
+    """Alternating least squares over the observations ``taking_part`` until the cost settles."""
+    n_frames, n_points = motion.shape[0], shape.shape[0]
+    previous = np.inf
+    converged = False
+    iterations = 0
+    while iterations < POLISH_ITERATIONS:
+        sel = taking_part & np.isfinite(motion[:, 0, 0])[frame]
+        shape = _solve_points(point_normal_equations(motion, translation, frame[sel], point[sel], xy[sel], n_points))
+        sel = taking_part & np.isfinite(shape[:, 0])[point]
+        motion, translation = _solve_frames(frame_normal_equations(shape, frame[sel], point[sel], xy[sel], n_frames))
+        iterations += 1
+        residual = _residuals(motion, translation, shape, frame[taking_part], point[taking_part], xy[taking_part])
+        cost = float(np.sum(np.square(residual[np.isfinite(residual)])))
+        if abs(previous - cost) <= POLISH_TOL * cost:
+            converged = True
+            break
+        previous = cost
+    return _Polished(motion, translation, shape, iterations, converged)
+
+
+@single_threaded_blas
+def factorize_segmented(observations: Observations, *, min_views: int = MIN_VIEWS,
+                        max_std_ratio: float = MAX_STD_RATIO) -> Reconstruction:
+    """Affine shape and motion of sparse observations too many for one dense array (see the module notes).
+
+    Parameters
+    ----------
+    observations : the tracks' observations, one entry per (frame, point)
+        (:meth:`~kalmansfm.structure.reconstruction.Observations.from_sparse`); frames = the
+        observations' first axis, in sequence order.
+    min_views, max_std_ratio : the reliability bound of :func:`~kalmansfm.structure.factorize`.
+
+    Returns
+    -------
+    Reconstruction
+        As :func:`~kalmansfm.structure.factorize` returns it (``kind="affine"``,
+        ``method="segmented"``), its observations kept sparse with each one's residual and
+        whether it was used or rejected; ``details.singular_values`` is empty (no measurement
+        matrix is formed) and ``details.iterations`` counts the polish's iterations.
+
+    Raises
+    ------
+    NotEnoughDataError
+        No window of frames determines an affine reconstruction.
+
+    Examples
+    --------
+    A camera turning slowly about the vertical axis past 400 short tracks over 300 frames:
+
+    >>> rng = np.random.default_rng(0)
+    >>> frames, tracks = 300, 400
+    >>> start = rng.integers(0, frames - 20, tracks)
+    >>> frame = np.concatenate([np.arange(s, s + 20) for s in start]); point = np.repeat(np.arange(tracks), 20)
+    >>> world = np.c_[rng.uniform(-1, 1, (tracks, 2)) * 100, rng.normal(0, 30, tracks)]
+    >>> angle = np.radians(0.2 * np.arange(frames))
+    >>> rows = np.stack([np.c_[np.cos(angle), 0 * angle, np.sin(angle)], np.c_[0 * angle, 1 + 0 * angle, 0 * angle]], 1)
+    >>> xy = np.einsum("nci,ni->nc", rows[frame], world[point]) + 320 + rng.normal(0, 0.5, (frame.size, 2))
+    >>> rec = factorize_segmented(Observations.from_sparse((frames, tracks), frame, point, xy))
+    >>> rec.method, int(rec.registered.sum()), bool(0.4 < rec.reprojection_rms < 0.6)
+    ('segmented', 300, True)
+    """
+    frame, point, xy = observations.frame, observations.point, observations.xy
+    n_frames, n_points = observations.shape
+    chain = _chain_windows(frame, point, xy, observations.shape)
+    if chain.chained == 0:
+        raise NotEnoughDataError(f"factorize needs a window of {WINDOW_FRAMES} frames with >= 3 frames and >= 4 tracks "
+                                 f"seen in >= {_WINDOW_VIEWS} of them; none of {chain.windows} has")
+    motion, translation, shape = _whitened(chain.motion, chain.translation, chain.shape)
+    rejected = chain.rejected
+    iterations, converged = 0, True
+    for _ in range(_REJECTION_ROUNDS):
+        polished = _polish(motion, translation, shape, frame, point, xy, ~rejected)
+        motion, translation, shape = polished.motion, polished.translation, polished.shape
+        iterations += polished.iterations
+        converged = polished.converged
+        residual = _residuals(motion, translation, shape, frame, point, xy)
+        threshold = _outlier_threshold(residual)
+        now_rejected = residual > threshold
+        if np.array_equal(now_rejected, rejected):
+            break
+        rejected = now_rejected
+    f_ok, p_ok = np.isfinite(motion).all(axis=(1, 2)), np.isfinite(shape).all(axis=1)
+    if f_ok.sum() < 3 or p_ok.sum() < 4:
+        raise NotEnoughDataError(f"factorize needs >= 3 frames and >= 4 points linked by observations; reached "
+                                 f"{int(f_ok.sum())} frames and {int(p_ok.sum())} points")
+    notes: list[str] = []
+    metric = metric_frame(motion, shape, translation, f_ok, p_ok, notes)
+    depth_determined = not notes
+    motion, shape, translation = metric.motion, metric.shape, metric.translation
+    residual = _residuals(motion, translation, shape, frame, point, xy)
+    used = np.isfinite(residual) & ~rejected
+    return _reconstruction(observations, motion, translation, shape, residual, used, rejected, metric.metric_matrix,
+                           depth_determined, min_views, max_std_ratio, iterations,
+                           _notes(chain, notes, f_ok, p_ok, rejected, threshold, converged, iterations))
+
+
+def _notes(chain: _Chain, notes: list[str], f_ok: np.ndarray, p_ok: np.ndarray, rejected: np.ndarray,
+           threshold: float, converged: bool, iterations: int) -> list[str]:
+    frames, points = f_ok.size, p_ok.size
+    said = [f"factorized in {chain.chained} overlapping windows of {WINDOW_FRAMES} frames (the segmented path: "
+            f"{frames} frames x {points} tracks are too many for one dense array), chained and refined over all "
+            f"{rejected.size} observations"]
+    if chain.chained < chain.windows:
+        said.append(f"{chain.windows - chain.chained} of {chain.windows} windows could not be fitted or chained to "
+                    "the others (too few tracks shared)")
+    if rejected.any():
+        said.append(f"{int(rejected.sum())} observations ({rejected.mean():.2%}) farther than {threshold:.3g} px "
+                    f"({OUTLIER_SIGMAS:g} robust σ) from the fit were rejected as outliers")
+    if not converged:
+        said.append(f"the refinement stopped after {iterations} iterations without converging")
+    if not f_ok.all():
+        said.append(f"{int((~f_ok).sum())} frame(s) not linked to the reconstructed points: left NaN")
+    if not p_ok.all():
+        said.append(f"{int((~p_ok).sum())} point(s) seen in fewer than 2 reconstructed frames or not linked: left NaN")
+    return said + notes
+
+
+def _reconstruction(observations: Observations, motion: np.ndarray, translation: np.ndarray, shape: np.ndarray,
+                    residual: np.ndarray, used: np.ndarray, rejected: np.ndarray, metric_matrix: np.ndarray,
+                    depth_determined: bool, min_views: int, max_std_ratio: float, iterations: int,
+                    notes: list[str]) -> Reconstruction:
+    """Each point's covariance and verdict, and the record, from the final factors."""
+    frame, point = observations.frame, observations.point
+    n_frames, n_points = observations.shape
+    f_ok, p_ok = np.isfinite(motion).all(axis=(1, 2)), np.isfinite(shape).all(axis=1)
+    views = np.bincount(point[used], minlength=n_points).astype(np.int64)
+    squared = np.bincount(point[used], weights=residual[used] ** 2, minlength=n_points)
+    reprojection_rms = np.where(views > 0, np.sqrt(squared / np.maximum(views, 1)), np.nan)
+    dof = 2 * int(used.sum()) - (3 * int(p_ok.sum()) + 8 * int(f_ok.sum()) - GAUGE_PARAMETERS)
+    noise_var = float(squared.sum()) / dof if dof > 0 else np.nan
+    normal = point_normal_equations(motion, np.zeros_like(translation), frame[used], point[used],
+                                    np.zeros((int(used.sum()), 2)), n_points).normal
+    covariances = np.full((n_points, 3, 3), np.nan)
+    solvable = p_ok & (views >= 2) & np.isfinite(noise_var)
+    if solvable.any():
+        eigenvalues, eigenvectors = np.linalg.eigh(normal[solvable])
+        floor = np.maximum(eigenvalues[:, -1:], np.finfo(float).tiny) * 1e-15  # as the dense path's covariances
+        inverse = (eigenvectors / np.maximum(eigenvalues, floor)[:, None, :]) @ eigenvectors.transpose(0, 2, 1)
+        covariances[solvable] = noise_var * inverse
+    seen = np.bincount(point[f_ok[frame]], minlength=n_points)
+    uncertainty = judge_points(shape, covariances, views, seen, reprojection_rms, noise_var, dof, p_ok,
+                               min_views=min_views, max_std_ratio=max_std_ratio, depth_determined=depth_determined)
+    cameras = affine_cameras(motion, translation)
+    return Reconstruction(
+        kind="affine",
+        method="segmented",
+        camera_model="affine",
+        projections=cameras.projections,
+        rotations=cameras.rotations,
+        frame_status=cameras.frame_status,
+        points=shape,
+        point_covariances=uncertainty.covariances,
+        point_status=uncertainty.status,
+        views=uncertainty.views,
+        point_reprojection_rms=uncertainty.reprojection_rms,
+        covariance_gauge=AFFINE_GAUGE,
+        observations=Observations.from_sparse(observations.shape, frame, point, observations.xy, used=used,
+                                              residual=residual, rejected=rejected),
+        noise=NoiseEstimate(std=uncertainty.noise_std, estimated=True, degrees_of_freedom=uncertainty.dof, unit="px"),
+        reprojection_rms=float(np.sqrt(squared.sum() / max(int(used.sum()), 1))),
+        details=AffineDetails(singular_values=np.zeros(0), iterations=iterations, metric_matrix=metric_matrix,
+                              weighted=False, shape_radius=uncertainty.radius_px, min_views=uncertainty.min_views,
+                              max_std_ratio=uncertainty.max_std_ratio),
+        warnings=(*uncertainty.warnings, *notes),
+    )
