@@ -42,7 +42,7 @@ class ReconstructRun:
     ``reconstruction`` is the model written; with an :class:`~kalmansfm.pipeline.requests.Auto`
     camera ``alternative`` is the other one (None otherwise, or when it was impossible).  ``tracks`` are
     the observations as read: :class:`~kalmansfm.io.tracks.TrackObservations` when the affine camera
-    factorized a file too many frames × tracks for dense arrays in windows.
+    factorized a file too many frames × tracks for dense arrays frame by frame.
     """
 
     out_dir: Path
@@ -207,11 +207,11 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
 
 def _reconstruct_segmented(request: ReconstructRequest, observed: TrackObservations, inputs: list[Path],
                            clock: Stopwatch) -> ReconstructRun:
-    """The affine run of tracks too many frames × tracks for dense arrays: factorized in windows, held sparsely."""
+    """The affine run of tracks too many frames × tracks for dense arrays: factorized frame by frame, held sparsely."""
     if request.smooth:
         raise InvalidInputError(f"cannot smooth the tracks: {request.tracks} holds no tracker states and covariances "
                                 "(smoothing needs the tracker's tracks.npz)")
-    log.info("read %d observations over %d frames x %d tracks from %s: factorized in windows", len(observed.xy),
+    log.info("read %d observations over %d frames x %d tracks from %s: factorized frame by frame", len(observed.xy),
              observed.frames.size, observed.track_ids.size, request.tracks)
     shape = (observed.frames.size, observed.track_ids.size)
     with clock.step("factorization"):

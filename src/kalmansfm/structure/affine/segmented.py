@@ -4,34 +4,27 @@ A dense (frames × points) array of a ten-minute sequence of short tracks is ten
 though its observations fit in a few hundred megabytes.  This fits the same model as
 :mod:`~kalmansfm.structure.affine.factorization`, x_fp = M_f S_p + t_f, without that array:
 
-1. *windows* — the frames are cut into windows of :data:`WINDOW_FRAMES` frames overlapping by
-   :data:`WINDOW_OVERLAP`; the tracks seen in at least :data:`_WINDOW_VIEWS` frames of a window
-   form a small dense problem, fitted by the dense code's missing-data path up to its affine
-   factors (before the metric upgrade); an observation farther than :data:`OUTLIER_SIGMAS`
-   robust σ from the window's fit is dropped and the window refitted once;
-2. *chaining* — each window's affine shape is mapped into the frame of the points already
-   placed by the windows before it by a 3-D affine transform (12 numbers), fitted by least
-   squares to the points they share, dropping shared points that do not follow it; the
-   window's motion and translations follow the same transform;
-3. *polish* — alternating least squares over all observations: every point's 3 × 3 and every
+1. *sequence* — a few frames that many tracks span are factorized in closed form, which fixes
+   the one affine frame; every other frame is then resected from the points already determined
+   and the points it sees are intersected again (:func:`~.sequential.sequential_factors`);
+2. *polish* — alternating least squares over all observations: every point's 3 × 3 and every
    frame's 4 × 4 normal equations summed with ``np.bincount`` over the observation arrays
    (:func:`point_normal_equations`, :func:`frame_normal_equations`), until the cost changes by
-   less than :data:`POLISH_TOL` (relative); frames and points not reached by the windows join
-   as soon as they are determined;
-4. *outliers* — after the polish every observation farther than :data:`OUTLIER_SIGMAS` robust σ
-   is rejected (re-admitted when it fits again) and the polish repeated, until the rejected
-   set stops changing (at most :data:`_REJECTION_ROUNDS` rounds).  The dense path rejects
-   nothing; on data without gross errors the two agree;
-5. one metric upgrade over all camera rows (:func:`~.factorization.metric_frame`), then each
+   less than :data:`POLISH_TOL` (relative) or :data:`POLISH_ITERATIONS` sweeps;
+3. *outliers* — every observation farther than :data:`OUTLIER_SIGMAS` robust σ from the fit is
+   rejected (re-admitted when it fits again) and the polish repeated, until the rejected set stops
+   changing (at most :data:`_REJECTION_ROUNDS` rounds).  The dense path rejects nothing; on data
+   without gross errors the two agree;
+4. one metric upgrade over all camera rows (:func:`~.factorization.metric_frame`), then each
    point's covariance σ̂² (Σ_f M_fᵀ M_f)⁻¹ over its own frames, σ̂ from the residuals with the
    degrees of freedom counted, and its verdict (:func:`~.uncertainty.judge_points`).
 
 Memory follows the observations: a few arrays of N × 16 numbers at a time, nothing of
-frames × points.  The chained windows' small errors add up along the sequence as a slowly
-varying affine distortion that the reprojections barely see (each stretch of frames is
-consistent in itself), so the polish corrects it only slowly; the metric upgrade of a long
-sequence is the check on it.  No singular values of the whole measurement matrix are computed
-(there is none), so the dense path's rank check is not made.
+frames × points.  A sequence with no loop back is fitted like visual odometry: the small errors
+of each stretch add up along it as a slowly varying affine distortion that the reprojections
+barely see (each stretch is consistent in itself), and which alternating least squares corrects
+only slowly; the metric upgrade of a long sequence is the check on it.  No singular values of the
+whole measurement matrix are computed (there is none), so the dense path's rank check is not made.
 """
 
 from __future__ import annotations
@@ -41,48 +34,33 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import NotEnoughDataError
-from ..reconstruction import AFFINE_GAUGE, AffineDetails, NoiseEstimate, Observations, Reconstruction
-from . import factorization
+from ..reconstruction import (
+    AFFINE_GAUGE,
+    AffineDetails,
+    NoiseEstimate,
+    Observations,
+    Reconstruction,
+)
 from .factorization import metric_frame, single_threaded_blas
 from .reconstruct import affine_cameras
+from .sequential import SequentialFactors, sequential_factors
 from .uncertainty import GAUGE_PARAMETERS, MAX_STD_RATIO, MIN_VIEWS, judge_points
 
-__all__ = ["DENSE_ENTRIES", "OUTLIER_SIGMAS", "POLISH_ITERATIONS", "POLISH_TOL", "WINDOW_FRAMES", "WINDOW_OVERLAP",
-           "FrameSystems", "PointSystems", "factorize_segmented", "fits_densely", "frame_normal_equations",
+__all__ = ["DENSE_ENTRIES", "OUTLIER_SIGMAS", "POLISH_ITERATIONS", "POLISH_TOL", "FrameSystems", "PointSystems",
+           "factorize_segmented", "fits_densely", "frame_normal_equations",
            "point_normal_equations"]
 
-#: Observations over more than this many (frames × points) entries are factorized in windows
+#: Observations over more than this many (frames × points) entries are factorized frame by frame
 #: (:func:`factorize_segmented`), not as one dense array (8 bytes × 2 coordinates an entry, and the
 #: dense fit's copies).
 DENSE_ENTRIES = 20_000_000
-#: Frames per window, and frames shared by consecutive windows (the tracks seen in both chain them).
-WINDOW_FRAMES = 64
-WINDOW_OVERLAP = 32
 #: An observation farther from the fit than this many robust σ (the median residual length / √(2 ln 2),
 #: the Rayleigh median) is rejected as an outlier: 1 in 3 000 of Gaussian observations is.
 OUTLIER_SIGMAS = 4.0
 #: The polish's iteration cap and relative stopping tolerance on the cost.
-POLISH_ITERATIONS = 100
-POLISH_TOL = 1e-7
+POLISH_ITERATIONS = 40
+POLISH_TOL = 1e-6
 
-# A track takes part in a window when seen in at least this many of its frames.
-_WINDOW_VIEWS = 3
-# A window's own fit: iteration cap and tolerance of the dense ALS.
-_WINDOW_ITERATIONS = 100
-_WINDOW_TOL = 1e-9
-# Points shared with those already placed needed to chain a window, and the cut (in median residuals)
-# beyond which a shared point does not follow the transform.  Only points seen in at least _CHAIN_VIEWS
-# frames of both windows chain them when there are enough: a least-squares transform fitted to noisy
-# shapes shrinks the poorly seen directions (regression dilution), and chained transforms compound it.
-_MIN_SHARED = 12
-_CHAIN_VIEWS = 6
-# Frames shared with the chain from which a window is chained by its camera rows (each estimated from all
-# the points a frame sees, so much less noisy than a shape seen in a few frames) rather than by its points.
-_MIN_SHARED_FRAMES = 8
-_CHAIN_CUT = 3.0
-# A window's point farther from the median point than this many times the median distance, measured in the
-# shape's own principal axes (the affine gauge of a window can be stretched anyhow), is not kept.
-_FAR_POINT = 6.0
 # No residual shorter than this is an outlier, however small σ̂ (exact data).
 _MIN_OUTLIER_PX = 0.01
 _RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
@@ -174,16 +152,18 @@ def _solvable(normal: np.ndarray, count: np.ndarray, least: int) -> np.ndarray:
     return ok
 
 
-def _solve_points(systems: PointSystems) -> np.ndarray:
-    shape = np.full((systems.count.size, 3), np.nan)
+def _solve_points(systems: PointSystems, previous: np.ndarray) -> np.ndarray:
+    """Every point solved from its system; one that is not solvable keeps its ``previous`` value."""
+    shape = previous.copy()
     ok = _solvable(systems.normal, systems.count, 2)
     shape[ok] = np.linalg.solve(systems.normal[ok], systems.rhs[ok][..., None])[..., 0]
     return shape
 
 
-def _solve_frames(systems: FrameSystems) -> tuple[np.ndarray, np.ndarray]:
-    frames = systems.count.size
-    motion, translation = np.full((frames, 2, 3), np.nan), np.full((frames, 2), np.nan)
+def _solve_frames(systems: FrameSystems, motion: np.ndarray, translation: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Every frame solved from its system; one that is not solvable keeps its ``motion`` and ``translation``."""
+    motion, translation = motion.copy(), translation.copy()
     ok = _solvable(systems.normal, systems.count, 4)
     solution = np.linalg.solve(systems.normal[ok], systems.rhs[ok])  # (n, 4, 2): column c is [m_c | t_c]
     motion[ok] = solution[:, :3].transpose(0, 2, 1)
@@ -206,199 +186,6 @@ def _outlier_threshold(residual: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
-class _Window:
-    """A window's affine factors: the frames and points reached (global indices), and the observations it rejected."""
-
-    frames: np.ndarray
-    motion: np.ndarray
-    translation: np.ndarray
-    points: np.ndarray
-    shape: np.ndarray
-    views: np.ndarray
-    rejected: np.ndarray
-
-
-def _fit_window(entries: np.ndarray, frame: np.ndarray, point: np.ndarray, xy: np.ndarray) -> _Window | None:
-    """The affine factors of the observations ``entries`` (one window's), or None when they do not determine them."""
-    _, inverse, counts = np.unique(point[entries], return_inverse=True, return_counts=True)
-    entries = entries[counts[inverse] >= _WINDOW_VIEWS]
-    points, local_p = np.unique(point[entries], return_inverse=True)
-    frames, local_f = np.unique(frame[entries], return_inverse=True)
-    if points.size < 4 or frames.size < 3:
-        return None
-    dense = np.full((frames.size, points.size, 2), np.nan)
-    dense[local_f, local_p] = xy[entries]
-    rejected = np.zeros(entries.size, dtype=bool)
-    for attempt in range(2):
-        try:
-            fit = factorization._general_fit(dense, None, _WINDOW_ITERATIONS, _WINDOW_TOL, 0, [], None)
-        except NotEnoughDataError:
-            return None
-        motion = np.full((frames.size, 2, 3), np.nan)
-        translation = np.full((frames.size, 2), np.nan)
-        shape = np.full((points.size, 3), np.nan)
-        f_index, p_index = np.flatnonzero(fit.use_f)[fit.f_ok], np.flatnonzero(fit.use_p)[fit.p_ok]
-        motion[f_index], translation[f_index] = fit.motion[fit.f_ok], fit.translation[fit.f_ok]
-        shape[p_index] = fit.shape[fit.p_ok]
-        residual = _residuals(motion, translation, shape, local_f, local_p, xy[entries])
-        residual[rejected] = np.nan
-        bad = residual > _outlier_threshold(residual)
-        if attempt or not bad.any():
-            break
-        rejected |= bad
-        dense[local_f[bad], local_p[bad]] = np.nan
-    reached_f, reached_p = np.isfinite(motion).all(axis=(1, 2)), np.isfinite(shape).all(axis=1)
-    # a point its few views barely determine can land anywhere: it would spoil the chaining (the polish places it)
-    reached_p[reached_p] = _central(shape[reached_p])
-    views = np.bincount(local_p[~rejected], minlength=points.size)
-    return _Window(frames[reached_f], motion[reached_f], translation[reached_f], points[reached_p], shape[reached_p],
-                   views[reached_p], entries[rejected])
-
-
-def _affine_from_frames(motion: np.ndarray, translation: np.ndarray, window_motion: np.ndarray,
-                        window_translation: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(A, b) with the chain's cameras in the window's gauge: M_w ≈ M A, t_w ≈ t + M b, over shared frames.
-
-    The rows' least squares both ways, averaged (see :func:`_affine_between`); None when the rows do
-    not span three directions.
-    """
-    rows, window_rows = motion.reshape(-1, 3), window_motion.reshape(-1, 3)
-    spread = np.linalg.svd(rows, compute_uv=False)
-    window_spread = np.linalg.svd(window_rows, compute_uv=False)
-    if not (spread[-1] > 1e-9 * spread[0] and window_spread[-1] > 1e-9 * window_spread[0]):
-        return None
-    forward = np.linalg.lstsq(rows, window_rows, rcond=None)[0]  # window_rows ≈ rows A
-    backward = np.linalg.lstsq(window_rows, rows, rcond=None)[0]  # rows ≈ window_rows A⁻¹
-    a = 0.5 * (forward + np.linalg.inv(backward))
-    b = np.linalg.lstsq(rows, (window_translation - translation).reshape(-1), rcond=None)[0]
-    return a, b
-
-
-def _central(shape: np.ndarray) -> np.ndarray:
-    """(n,) which points of an affine ``shape`` (n, 3) lie within :data:`_FAR_POINT` median whitened distances."""
-    keep = np.ones(len(shape), dtype=bool)
-    for _ in range(3):
-        if keep.sum() < 4:
-            break
-        centred = shape - np.median(shape[keep], axis=0)
-        covariance = np.cov(centred[keep].T) + 1e-300 * np.eye(3)
-        try:
-            whitened = np.linalg.solve(np.linalg.cholesky(covariance), centred.T).T
-        except np.linalg.LinAlgError:
-            break
-        distance = np.linalg.norm(whitened, axis=1)
-        inside = distance <= _FAR_POINT * float(np.median(distance[keep]))
-        if np.array_equal(inside, keep):
-            break
-        keep = inside
-    return keep
-
-
-def _affine_between(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(A, b) with target ≈ A source + b over the points that follow it; None when ill-determined.
-
-    Both shapes are noisy estimates: least squares of target on source shrinks A in the directions
-    where the source is noisy, that of source on target widens A⁻¹ where the target is; their mean
-    cancels the shrinking to first order when the two are about as noisy (they are, each from a
-    window's fit), which chained transforms need (a bias compounds along the sequence).
-    """
-    keep = _central(source) & _central(target)
-    for _ in range(4):
-        if keep.sum() < _MIN_SHARED:
-            return None
-        s_mean, t_mean = source[keep].mean(axis=0), target[keep].mean(axis=0)
-        s_c, t_c = source[keep] - s_mean, target[keep] - t_mean
-        spread_s, spread_t = (np.linalg.svd(c, compute_uv=False) for c in (s_c, t_c))
-        if not (spread_s[-1] > 1e-6 * spread_s[0] and spread_t[-1] > 1e-6 * spread_t[0]):
-            return None
-        forward = np.linalg.lstsq(s_c, t_c, rcond=None)[0].T  # t_c ≈ s_c Aᵀ
-        backward = np.linalg.lstsq(t_c, s_c, rcond=None)[0].T  # s_c ≈ t_c Bᵀ
-        a = 0.5 * (forward + np.linalg.inv(backward))
-        b = t_mean - a @ s_mean
-        distance = np.linalg.norm(source @ a.T + b - target, axis=1)
-        follows = distance <= max(_CHAIN_CUT * float(np.median(distance[keep])), 1e-12 * float(np.abs(target).max()))
-        if np.array_equal(follows, keep):
-            break
-        keep = follows
-    return a, b
-
-
-@dataclass(frozen=True)
-class _Chain:
-    motion: np.ndarray
-    translation: np.ndarray
-    shape: np.ndarray
-    rejected: np.ndarray
-    windows: int
-    chained: int
-
-
-def _chain_windows(frame: np.ndarray, point: np.ndarray, xy: np.ndarray, shape: tuple[int, int]) -> _Chain:
-    """Fit every window and map each into the affine frame of the points placed before it."""
-    n_frames, n_points = shape
-    motion, translation = np.full((n_frames, 2, 3), np.nan), np.full((n_frames, 2), np.nan)
-    points, placed = np.full((n_points, 3), np.nan), np.zeros(n_points, dtype=bool)
-    placed_views = np.zeros(n_points, dtype=np.int64)  # the views of the window that placed each point
-    rejected = np.zeros(frame.size, dtype=bool)
-    by_frame = np.argsort(frame, kind="stable")
-    starts = np.arange(0, max(n_frames - WINDOW_OVERLAP, 1), WINDOW_FRAMES - WINDOW_OVERLAP)
-    chained = 0
-    for start in starts.tolist():
-        lo, hi = np.searchsorted(frame[by_frame], [start, start + WINDOW_FRAMES])
-        window = _fit_window(by_frame[lo:hi], frame, point, xy)
-        if window is None:
-            continue
-        known = np.isfinite(motion[window.frames]).all(axis=(1, 2))
-        if known.sum() >= _MIN_SHARED_FRAMES:
-            transform = _affine_from_frames(motion[window.frames[known]], translation[window.frames[known]],
-                                            window.motion[known], window.translation[known])
-            if transform is None:
-                continue
-            a, b = transform
-        elif placed.any():
-            shared = placed[window.points]
-            well_seen = shared & (window.views >= _CHAIN_VIEWS) & (placed_views[window.points] >= _CHAIN_VIEWS)
-            if well_seen.sum() >= 2 * _MIN_SHARED:
-                shared = well_seen
-            transform = (_affine_between(window.shape[shared], points[window.points[shared]])
-                         if shared.sum() >= _MIN_SHARED else None)
-            if transform is None:
-                continue
-            a, b = transform
-        else:
-            a, b = np.eye(3), np.zeros(3)
-        rejected[window.rejected] = True
-        # what is placed moves into the window's gauge, S_g = A S_w + b: S' = A⁻¹ (S_g − b), M' = M_g A,
-        # t' = t_g + M_g b; the front of the chain is thus always in a window's own, well-conditioned, gauge
-        translation += motion @ b
-        motion = motion @ a
-        points = (points - b) @ np.linalg.inv(a).T
-        new_f = ~np.isfinite(motion[window.frames]).all(axis=(1, 2))
-        motion[window.frames[new_f]] = window.motion[new_f]
-        translation[window.frames[new_f]] = window.translation[new_f]
-        new_p = ~placed[window.points]
-        points[window.points[new_p]] = window.shape[new_p]
-        placed[window.points[new_p]] = True
-        placed_views[window.points[new_p]] = window.views[new_p]
-        chained += 1
-    return _Chain(motion, translation, points, rejected, len(starts), chained)
-
-
-def _whitened(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The same model in the affine gauge where the camera rows' second moments are the identity.
-
-    The chained gauge is the last window's; far from it the rows of a long sequence can be nearly
-    parallel there, and the points' normal equations ill-conditioned.
-    """
-    known = np.isfinite(motion).all(axis=(1, 2))
-    rows = motion[known].reshape(-1, 3)
-    eigenvalues, eigenvectors = np.linalg.eigh(rows.T @ rows / len(rows))
-    root = (eigenvectors * np.sqrt(np.maximum(eigenvalues, np.finfo(float).tiny))) @ eigenvectors.T
-    return motion @ np.linalg.inv(root), translation, shape @ root.T
-
-
-@dataclass(frozen=True)
 class _Polished:
     motion: np.ndarray
     translation: np.ndarray
@@ -416,9 +203,11 @@ def _polish(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, fram
     iterations = 0
     while iterations < POLISH_ITERATIONS:
         sel = taking_part & np.isfinite(motion[:, 0, 0])[frame]
-        shape = _solve_points(point_normal_equations(motion, translation, frame[sel], point[sel], xy[sel], n_points))
+        shape = _solve_points(point_normal_equations(motion, translation, frame[sel], point[sel], xy[sel], n_points),
+                              shape)
         sel = taking_part & np.isfinite(shape[:, 0])[point]
-        motion, translation = _solve_frames(frame_normal_equations(shape, frame[sel], point[sel], xy[sel], n_frames))
+        motion, translation = _solve_frames(frame_normal_equations(shape, frame[sel], point[sel], xy[sel], n_frames),
+                                           motion, translation)
         iterations += 1
         residual = _residuals(motion, translation, shape, frame[taking_part], point[taking_part], xy[taking_part])
         cost = float(np.sum(np.square(residual[np.isfinite(residual)])))
@@ -445,7 +234,7 @@ def factorize_segmented(observations: Observations, *, min_views: int = MIN_VIEW
     -------
     Reconstruction
         As :func:`~kalmansfm.structure.factorize` returns it (``kind="affine"``,
-        ``method="segmented"``), its observations kept sparse with each one's residual and
+        ``method="sequential"``), its observations kept sparse with each one's residual and
         whether it was used or rejected; ``details.singular_values`` is empty (no measurement
         matrix is formed) and ``details.iterations`` counts the polish's iterations.
 
@@ -468,16 +257,12 @@ def factorize_segmented(observations: Observations, *, min_views: int = MIN_VIEW
     >>> xy = np.einsum("nci,ni->nc", rows[frame], world[point]) + 320 + rng.normal(0, 0.5, (frame.size, 2))
     >>> rec = factorize_segmented(Observations.from_sparse((frames, tracks), frame, point, xy))
     >>> rec.method, int(rec.registered.sum()), bool(rec.reprojection_rms < 1.0)
-    ('segmented', 296, True)
+    ('sequential', 296, True)
     """
     frame, point, xy = observations.frame, observations.point, observations.xy
-    n_frames, n_points = observations.shape
-    chain = _chain_windows(frame, point, xy, observations.shape)
-    if chain.chained == 0:
-        raise NotEnoughDataError(f"factorize needs a window of {WINDOW_FRAMES} frames with >= 3 frames and >= 4 tracks "
-                                 f"seen in >= {_WINDOW_VIEWS} of them; none of {chain.windows} has")
-    motion, translation, shape = _whitened(chain.motion, chain.translation, chain.shape)
-    rejected = chain.rejected
+    start = sequential_factors(frame, point, xy, observations.shape)
+    motion, translation, shape = start.motion, start.translation, start.shape
+    rejected = start.rejected
     iterations, converged = 0, True
     for _ in range(_REJECTION_ROUNDS):
         polished = _polish(motion, translation, shape, frame, point, xy, ~rejected)
@@ -502,18 +287,15 @@ def factorize_segmented(observations: Observations, *, min_views: int = MIN_VIEW
     used = np.isfinite(residual) & ~rejected
     return _reconstruction(observations, motion, translation, shape, residual, used, rejected, metric.metric_matrix,
                            depth_determined, min_views, max_std_ratio, iterations,
-                           _notes(chain, notes, f_ok, p_ok, rejected, threshold, converged, iterations))
+                           _notes(start, notes, f_ok, p_ok, rejected, threshold, converged, iterations))
 
 
-def _notes(chain: _Chain, notes: list[str], f_ok: np.ndarray, p_ok: np.ndarray, rejected: np.ndarray,
+def _notes(start: SequentialFactors, notes: list[str], f_ok: np.ndarray, p_ok: np.ndarray, rejected: np.ndarray,
            threshold: float, converged: bool, iterations: int) -> list[str]:
     frames, points = f_ok.size, p_ok.size
-    said = [f"factorized in {chain.chained} overlapping windows of {WINDOW_FRAMES} frames (the segmented path: "
-            f"{frames} frames x {points} tracks are too many for one dense array), chained and refined over all "
-            f"{rejected.size} observations"]
-    if chain.chained < chain.windows:
-        said.append(f"{chain.windows - chain.chained} of {chain.windows} windows could not be fitted or chained to "
-                    "the others (too few tracks shared)")
+    said = [f"factorized frame by frame from frames {start.initial_start}-{start.initial_start + start.initial_frames - 1} "
+            f"(the sequential path: {frames} frames x {points} tracks are too many for one dense array), refined over "
+            f"all {rejected.size} observations"]
     if rejected.any():
         said.append(f"{int(rejected.sum())} observations ({rejected.mean():.2%}) farther than {threshold:.3g} px "
                     f"({OUTLIER_SIGMAS:g} robust σ) from the fit were rejected as outliers")
@@ -532,7 +314,7 @@ def _reconstruction(observations: Observations, motion: np.ndarray, translation:
                     notes: list[str]) -> Reconstruction:
     """Each point's covariance and verdict, and the record, from the final factors."""
     frame, point = observations.frame, observations.point
-    n_frames, n_points = observations.shape
+    n_points = observations.shape[1]
     f_ok, p_ok = np.isfinite(motion).all(axis=(1, 2)), np.isfinite(shape).all(axis=1)
     views = np.bincount(point[used], minlength=n_points).astype(np.int64)
     squared = np.bincount(point[used], weights=residual[used] ** 2, minlength=n_points)
@@ -554,7 +336,7 @@ def _reconstruction(observations: Observations, motion: np.ndarray, translation:
     cameras = affine_cameras(motion, translation)
     return Reconstruction(
         kind="affine",
-        method="segmented",
+        method="sequential",
         camera_model="affine",
         projections=cameras.projections,
         rotations=cameras.rotations,
