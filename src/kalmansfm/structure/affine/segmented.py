@@ -58,7 +58,7 @@ DENSE_ENTRIES = 20_000_000
 #: the Rayleigh median) is rejected as an outlier: 1 in 3 000 of Gaussian observations is.
 OUTLIER_SIGMAS = 4.0
 #: The polish's iteration cap and relative stopping tolerance on the cost.
-POLISH_ITERATIONS = 40
+POLISH_ITERATIONS = 10
 POLISH_TOL = 1e-6
 
 # No residual shorter than this is an outlier, however small σ̂ (exact data).
