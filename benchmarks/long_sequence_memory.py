@@ -79,7 +79,7 @@ def write_inputs(folder: Path, frames: int, tracks: int) -> tuple[np.ndarray, np
 
 def score_affine(out: Path, index: np.ndarray, wild: np.ndarray, frames: int) -> str:
     """The affine run's reprojection RMS over the observations it used, the planted gross errors it rejected,
-    and the drift of its camera rows: |M_f| over |M*_f A| at the last frame, A the affine map fitted over the
+    and the drift of its camera rows: |M_f| over |M*_f A| at the middle and last frames, A the affine map fitted over the
     first tenth of the frames from the true affine cameras M*_f = [[f, −f c_f, 0], [0, 0, f]] (the sliding
     scene is exactly rank 3: s = (X/Z, 1/Z, Y/Z)); 1 = no drift."""
     rec = read_reconstruction(out / "reconstruction.npz")
@@ -97,13 +97,14 @@ def score_affine(out: Path, index: np.ndarray, wild: np.ndarray, frames: int) ->
     f_true = rec.frame_ids[registered]
     early = registered[: max(len(registered) // 10, 3)]
     a = np.linalg.lstsq(true_rows[rec.frame_ids[early]].reshape(-1, 3), rec.motion[early].reshape(-1, 3), rcond=None)[0]
-    last = registered[-1]
-    drift = np.linalg.norm(rec.motion[last], axis=1) / np.linalg.norm(true_rows[f_true[-1]] @ a, axis=1)
-    return (f"#   affine: {registered.size} of {frames} frames; reprojection RMS {rec.reprojection_rms:.3f} px over the "
-            f"{used.sum()} observations used ({rms:.3f} px over the {clean_used.sum()} clean ones); rejected "
+    drift = [np.linalg.norm(rec.motion[k], axis=1) / np.linalg.norm(true_rows[f_true[i]] @ a, axis=1)
+             for i, k in ((len(registered) // 2, registered[len(registered) // 2]), (-1, registered[-1]))]
+    return (f"#   affine: {registered.size} of {frames} frames; reprojection RMS {rec.reprojection_rms:.3f} px over "
+            f"the {used.sum()} observations used ({rms:.3f} px over the {clean_used.sum()} clean ones); rejected "
             f"{obs.rejected.mean():.2%} of the observations, {obs.rejected[planted].mean():.1%} of the "
             f"{planted.sum()} planted gross errors and {obs.rejected[~planted].mean():.2%} of the others; camera-row "
-            f"norms at the last frame / the truth's mapped from the first tenth: {drift[0]:.3f}, {drift[1]:.3f}")
+            f"norms / the truth's mapped from the first tenth: {drift[0][0]:.3f}, {drift[0][1]:.3f} at the middle "
+            f"frame, {drift[1][0]:.3f}, {drift[1][1]:.3f} at the last")
 
 
 def run(args: list[str]) -> tuple[int, float, float, str]:

@@ -131,7 +131,7 @@ def _initial_fit(entries: np.ndarray, point: np.ndarray, frame: np.ndarray, xy: 
 
 
 def _initial_window(frame: np.ndarray, point: np.ndarray, n_frames: int, n_points: int) -> int:
-    """First frame of the :data:`INITIAL_FRAMES` frames (among the first :data:`_INITIAL_SEARCH`) that most tracks span."""
+    """First of the :data:`INITIAL_FRAMES` frames (starting among the first :data:`_INITIAL_SEARCH`) most tracks span."""
     first = np.full(n_points, n_frames, dtype=np.int64)
     last = np.full(n_points, -1, dtype=np.int64)
     np.minimum.at(first, point, frame)
