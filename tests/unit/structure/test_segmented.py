@@ -7,7 +7,9 @@ from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
 from kalmansfm.structure import factorize
 from kalmansfm.structure.affine import segmented
+from kalmansfm.errors import NotEnoughDataError
 from kalmansfm.structure.affine.segmented import factorize_segmented, frame_normal_equations, point_normal_equations
+from kalmansfm.structure.affine.sequential import sequential_factors
 from kalmansfm.structure.reconstruction import Observations
 
 
@@ -85,6 +87,25 @@ def test_sequential_fits_a_sliding_sequence_to_the_noise_level_where_the_dense_p
     assert rec.reprojection_rms == pytest.approx(expected, rel=0.03)
     assert 0.47 < rec.noise.std < 0.53
     assert any("frame by frame" in w for w in rec.warnings)
+
+
+def test_exact_observations_are_reproduced_frame_by_frame():
+    frame, point, xy, _ = sliding_sequence(frames=400, tracks=1200, noise=0.0)
+    fit = sequential_factors(frame, point, xy, (400, 1200))
+    predicted = np.einsum("nci,ni->nc", fit.motion[frame], fit.shape[point]) + fit.translation[frame]
+    seen = np.bincount(frame, minlength=400)
+    # every frame that sees enough points is resected; the fit is exact wherever it reaches
+    assert np.isfinite(fit.motion[:, 0, 0])[seen >= 20].all() and not fit.rejected.any()
+    reached = np.isfinite(predicted[:, 0])
+    assert reached.mean() > 0.99 and np.abs(predicted[reached] - xy[reached]).max() < 1e-4  # float64 rounding only
+
+
+def test_too_few_tracks_to_start_from_are_refused():
+    frame = np.repeat(np.arange(20), 3)
+    point = np.tile(np.arange(3), 20)
+    xy = np.random.default_rng(0).normal(size=(60, 2))
+    with pytest.raises(NotEnoughDataError, match="tracks seen in each of the first"):
+        sequential_factors(frame, point, xy, (20, 3))
 
 
 def test_gross_errors_are_rejected():

@@ -65,7 +65,8 @@ _CONDITION = 1e-14
 
 @dataclass(frozen=True)
 class SequentialFactors:
-    """Affine factors of a sequence, x_fp ≈ M_f S_p + t_f, in the affine frame of its first frames.
+    """Affine factors of a sequence, x_fp ≈ M_f S_p + t_f, in one affine gauge for all of it (the camera rows'
+    second moments the identity, the points centred).
 
     Attributes
     ----------
