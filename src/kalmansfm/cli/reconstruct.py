@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     shown = ", ".join(f"{v:.4g}" for v in s.singular_values[:5])  # as demo prints them
     print(f"frames: {s.frames}  tracks: {s.points}  method: {s.method}"
-          + (f" ({s.iterations} iterations)" if s.method == "als" else "")
+          + (f" ({s.iterations} iterations)" if s.method in ("als", "sequential") else "")
           + ("  weighted by tracker std" if s.weighted else "")
           + ("  smoothed" if s.smoothed is not False else ""))
     print(f"singular values: {shown}")

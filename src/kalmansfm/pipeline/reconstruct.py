@@ -23,6 +23,7 @@ from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import TrackObservations, read_track_observations, read_tracks
 from ..structure import Observations, Reconstruction
+from ..structure.affine.segmented import factorize_segmented, fits_densely
 from ..structure.perspective import reconstruct_perspective
 from ..structure.perspective.segmented import fits_dense_reconstruction, reconstruct_segmented
 from ..tracking import Tracks, smooth_tracks
@@ -42,8 +43,9 @@ class ReconstructRun:
 
     ``reconstruction`` is the model written; with an :class:`~kalmansfm.pipeline.requests.Auto`
     camera ``alternative`` is the other one (None otherwise, or when it was impossible).  ``tracks``
-    are per observation (:class:`~kalmansfm.io.tracks.TrackObservations`) when a long sequence
-    was reconstructed in windows.
+    are per observation (:class:`~kalmansfm.io.tracks.TrackObservations`) when a long sequence, too
+    many frames × tracks for dense arrays, was reconstructed per observation (affine: frame by frame;
+    perspective: in windows of frames).
     """
 
     out_dir: Path
@@ -155,10 +157,11 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     check_output_directory(request.out, inputs=inputs)
     clock = Stopwatch()
     name = request.tracks.name
-    if isinstance(camera, Perspective) and not request.smooth and request.tracks.suffix.lower() != ".npz":
+    if isinstance(camera, (Affine, Perspective)) and not request.smooth and request.tracks.suffix.lower() != ".npz":
         observed = read_track_observations(request.tracks)  # a tracker's npz is read densely (and smoothed)
-        if not fits_dense_reconstruction((observed.frames.size, observed.track_ids.size)):
-            return _run_segmented(request, camera, observed, inputs, clock)
+        shape = (observed.frames.size, observed.track_ids.size)
+        if not (fits_densely(shape) if isinstance(camera, Affine) else fits_dense_reconstruction(shape)):
+            return _run_per_observation(request, camera, observed, inputs, clock)
     if perspective is None:
         tracks = read_tracks_for_factorization(request.tracks, smooth=request.smooth)
     else:
@@ -206,21 +209,32 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     return ReconstructRun(request.out, tracks, chosen, summary, other)
 
 
-def _run_segmented(request: ReconstructRequest, camera: Perspective, observed: TrackObservations,
-                   inputs: list[Path | None], clock: Stopwatch) -> ReconstructRun:
-    """A long sequence, too large for one dense reconstruction, reconstructed in windows (per observation throughout)."""
-    K, source = resolve_intrinsics(observed.frames, camera, observed.image_size)
-    made_from = run_source(request.tracks, [p for p in inputs if p is not None], request_options(request))
-    log.info("read %d frames x %d tracks (%d observations) from %s: reconstructed in windows of frames",
-             observed.frames.size, observed.track_ids.size, observed.frame.size, request.tracks)
-    observations = Observations.from_sparse((observed.frames.size, observed.track_ids.size), observed.frame,
-                                            observed.track, observed.xy)
-    with clock.step("perspective reconstruction"):
-        with tqdm(total=observed.frames.size, desc="windows of frames", unit="frame", disable=not request.progress,
-                  leave=False) as bar:
-            rec = reconstruct_segmented(observations, K, camera.settings, progress=lambda done, _: bar.update(done - bar.n))
+def _run_per_observation(request: ReconstructRequest, camera: Affine | Perspective, observed: TrackObservations,
+                         inputs: list[Path | None], clock: Stopwatch) -> ReconstructRun:
+    """A long sequence, too many frames × tracks for dense arrays, reconstructed per observation throughout.
+
+    Affine: factorized frame by frame (:func:`~kalmansfm.structure.affine.segmented.factorize_segmented`);
+    perspective: in overlapping windows of frames
+    (:func:`~kalmansfm.structure.perspective.segmented.reconstruct_segmented`).
+    """
+    shape = (observed.frames.size, observed.track_ids.size)
+    observations = Observations.from_sparse(shape, observed.frame, observed.track, observed.xy)
+    how = "factorized frame by frame" if isinstance(camera, Affine) else "reconstructed in windows of frames"
+    log.info("read %d observations over %d frames x %d tracks from %s: %s", observed.frame.size, *shape,
+             request.tracks, how)
+    source = None
+    if isinstance(camera, Affine):
+        with clock.step("factorization"):
+            rec = factorize_segmented(observations)
+    else:
+        K, source = resolve_intrinsics(observed.frames, camera, observed.image_size)
+        with clock.step("perspective reconstruction"), tqdm(total=shape[0], desc="windows of frames", unit="frame",
+                                                             disable=not request.progress, leave=False) as bar:
+            rec = reconstruct_segmented(observations, K, camera.settings,
+                                        progress=lambda done, _: bar.update(done - bar.n))
     rec = rec.with_ids(observed.frames, observed.track_ids)
-    metrics = reconstruction_metrics(rec, intrinsics=source)
+    made_from = run_source(request.tracks, [p for p in inputs if p is not None], request_options(request))
+    metrics = reconstruction_metrics(rec, intrinsics=source, smoothed=False if isinstance(camera, Affine) else None)
     summary = RunSummary(command="reconstruct", input=str(request.tracks), source=made_from, smoothed=False,
                          reconstruction=metrics)
     with output_directory(request.out, inputs=inputs) as out:

@@ -21,6 +21,8 @@ __all__ = ["reconstruction_cards", "section_reconstruction"]
 _MODELS = {
     ("affine", "svd"): "affine cameras: Tomasi–Kanade factorization, closed form (svd)",
     ("affine", "als"): "affine cameras: Tomasi–Kanade factorization, weighted alternating least squares (als)",
+    ("affine", "sequential"): "affine cameras: factorization of a long sequence frame by frame (resection and "
+                              "intersection), refined over all observations (sequential)",
     ("fusion", "recursive"): "known cameras: recursive fusion, view by view (inverse depth, iterated updates)",
     ("fusion", "batch"): "known cameras: per-point maximum likelihood (batch)",
     ("fusion", "pairs"): "known cameras: the report's fusion of consecutive two-view triangulations (pairs)",

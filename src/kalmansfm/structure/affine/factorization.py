@@ -51,7 +51,7 @@ from ..._validation import as_float_array, check_count
 from ._als import row_blocks, weighted_als
 from .lowrank import truncated_svd
 
-__all__ = ["DEFAULT_MAX_ITERATIONS", "AffineFactors", "factor_affine", "metric_upgrade"]
+__all__ = ["DEFAULT_MAX_ITERATIONS", "AffineFactors", "MetricFrame", "factor_affine", "metric_frame", "metric_upgrade"]
 
 # The large sums of a factorization are numba kernels; its BLAS and LAPACK calls are small or
 # medium (SVDs of a few hundred rows, thin products): BLAS threads only add synchronisation, and on
@@ -238,23 +238,8 @@ def factor_affine(
     before = len(notes)
     _check_rank(fit.singular_values, motion_aff[f_ok], shape_aff[p_ok], notes)
 
-    rows = motion_aff[f_ok].reshape(-1, 3)
-    a_matrix, q = metric_upgrade(rows, notes)
-    motion = motion_aff @ q  # R = R* Q
-    shape = np.linalg.solve(q, shape_aff.T).T  # S = Q⁻¹ S*
-
-    # Gauge: the orthonormal 2 × 3 nearest to frame 0's rows becomes [I 0].
-    first = int(np.flatnonzero(f_ok)[0])
-    u, _, vt = np.linalg.svd(motion[first], full_matrices=False)
-    axes = u @ vt
-    basis = np.vstack([axes, np.cross(axes[0], axes[1])])  # rows: camera x, y, z of frame 0
-    motion = motion @ basis.T
-    shape = shape @ basis.T
-    # Centre the shape; the shift goes into the translation: x = M (S − c) + (t + M c).
-    centroid = shape[p_ok].mean(axis=0)
-    shape = shape - centroid
-    translation = fit.translation + motion @ centroid
-    _check_shape(shape[p_ok], notes)
+    metric = metric_frame(motion_aff, shape_aff, fit.translation, f_ok, p_ok, notes)
+    motion, shape, translation, a_matrix = metric.motion, metric.shape, metric.translation, metric.metric_matrix
     # the rank, metric and shape checks each add a note when the depth is not determined
     depth_determined = len(notes) == before
 
@@ -405,6 +390,61 @@ def _general_fit(
         shape=shape_aff, translation=translation, singular_values=sv, method=method, iterations=iterations,
         residual_dtype=residual_dtype,
     )
+
+
+@dataclass(frozen=True)
+class MetricFrame:
+    """Affine factors moved into the metric frame: orthonormal camera rows, frame 0's as the X and Y axes.
+
+    Attributes
+    ----------
+    motion : (F, 2, 3) camera rows R = R* Q in the gauge (NaN where the affine motion was).
+    shape : (P, 3) S = Q⁻¹ S* in the same gauge, centred on the centroid of the points reached.
+    translation : (F, 2) image of that centroid.
+    metric_matrix : (3, 3) A = Q Qᵀ used (after any positive-definite repair).
+    """
+
+    motion: np.ndarray
+    shape: np.ndarray
+    translation: np.ndarray
+    metric_matrix: np.ndarray
+
+
+def metric_frame(motion_aff: np.ndarray, shape_aff: np.ndarray, translation: np.ndarray, f_ok: np.ndarray,
+                 p_ok: np.ndarray, notes: list[str]) -> MetricFrame:
+    """The metric upgrade of affine factors (frames ``f_ok`` and points ``p_ok`` reached), the gauge and the centring.
+
+    Appends to ``notes`` when the metric system is ill-determined or repaired and when the
+    shape comes out (nearly) coplanar.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1)
+    >>> rows = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0][:2] for _ in range(6)])
+    >>> mixing = rng.normal(size=(3, 3))
+    >>> shape = rng.normal(size=(10, 3))
+    >>> m = metric_frame(rows @ mixing, shape @ np.linalg.inv(mixing).T, np.zeros((6, 2)), np.ones(6, bool),
+    ...                  np.ones(10, bool), [])
+    >>> bool(np.allclose(m.motion[0], np.eye(3)[:2])), bool(np.allclose(m.motion @ m.shape.T + m.translation[..., None],
+    ...                                                                  rows @ shape.T))
+    (True, True)
+    """
+    a_matrix, q = metric_upgrade(motion_aff[f_ok].reshape(-1, 3), notes)
+    motion = motion_aff @ q  # R = R* Q
+    shape = np.linalg.solve(q, shape_aff.T).T  # S = Q⁻¹ S*
+    # Gauge: the orthonormal 2 × 3 nearest to frame 0's rows becomes [I 0].
+    first = int(np.flatnonzero(f_ok)[0])
+    u, _, vt = np.linalg.svd(motion[first], full_matrices=False)
+    axes = u @ vt
+    basis = np.vstack([axes, np.cross(axes[0], axes[1])])  # rows: camera x, y, z of frame 0
+    motion = motion @ basis.T
+    shape = shape @ basis.T
+    # Centre the shape; the shift goes into the translation: x = M (S − c) + (t + M c).
+    centroid = shape[p_ok].mean(axis=0)
+    shape = shape - centroid
+    translation = translation + motion @ centroid
+    _check_shape(shape[p_ok], notes)
+    return MetricFrame(motion, shape, translation, a_matrix)
 
 
 def metric_upgrade(affine_rows: np.ndarray, notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -12,7 +13,7 @@ from ..reconstruction import AFFINE_GAUGE, AffineDetails, FrameStatus, NoiseEsti
 from .factorization import DEFAULT_MAX_ITERATIONS, AffineFactors, factor_affine, single_threaded_blas
 from .uncertainty import MAX_STD_RATIO, MIN_VIEWS, PointUncertainty, point_uncertainty
 
-__all__ = ["factorize"]
+__all__ = ["AffineCameras", "affine_cameras", "factorize"]
 
 
 @single_threaded_blas  # the points' covariances too: small products and 3 × 3 eigen-decompositions
@@ -92,26 +93,55 @@ def factorize(
     return affine_reconstruction(factors, uncertainty, positions, weighted=weights is not None)
 
 
-def affine_reconstruction(factors: AffineFactors, uncertainty: PointUncertainty, positions: np.ndarray, *,
-                          weighted: bool) -> Reconstruction:
-    """The :class:`~kalmansfm.structure.Reconstruction` of a factorization and its points' uncertainty."""
-    frames = factors.motion.shape[0]
-    known = np.isfinite(factors.motion).all(axis=(1, 2)) & np.isfinite(factors.translation).all(axis=1)
+@dataclass(frozen=True)
+class AffineCameras:
+    """Affine cameras as a :class:`~kalmansfm.structure.Reconstruction` holds them.
+
+    Attributes
+    ----------
+    projections : (F, 3, 4) [M_f t_f; 0 0 0 1]; NaN for a frame without motion.
+    rotations : (F, 3, 3) the nearest rotation to the camera rows, completed by their cross product.
+    frame_status : (F,) int8 ``registered`` where the frame has motion, ``not_connected`` elsewhere.
+    """
+
+    projections: np.ndarray
+    rotations: np.ndarray
+    frame_status: np.ndarray
+
+
+def affine_cameras(motion: np.ndarray, translation: np.ndarray) -> AffineCameras:
+    """The projections, rotations and statuses of affine cameras (F, 2, 3) rows and (F, 2) translations.
+
+    Examples
+    --------
+    >>> c = affine_cameras(np.stack([np.eye(3)[:2], np.full((2, 3), np.nan)]), np.array([[1.0, 2.0], [0.0, 0.0]]))
+    >>> c.projections[0].tolist(), c.frame_status.tolist()
+    ([[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0]], [0, 1])
+    """
+    frames = motion.shape[0]
+    known = np.isfinite(motion).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     projections = np.full((frames, 3, 4), np.nan)
-    projections[known, :2, :3] = factors.motion[known]
-    projections[known, :2, 3] = factors.translation[known]
+    projections[known, :2, :3] = motion[known]
+    projections[known, :2, 3] = translation[known]
     projections[known, 2] = (0.0, 0.0, 0.0, 1.0)
     rotations = np.full((frames, 3, 3), np.nan)
     if known.any():
-        rotations[known] = camera_rotation_matrices(factors.motion[known])
+        rotations[known] = camera_rotation_matrices(motion[known])
     status = np.where(known, FrameStatus.REGISTERED, FrameStatus.NOT_CONNECTED).astype(np.int8)
+    return AffineCameras(projections, rotations, status)
+
+
+def affine_reconstruction(factors: AffineFactors, uncertainty: PointUncertainty, positions: np.ndarray, *,
+                          weighted: bool) -> Reconstruction:
+    """The :class:`~kalmansfm.structure.Reconstruction` of a factorization and its points' uncertainty."""
+    cameras = affine_cameras(factors.motion, factors.translation)
     return Reconstruction(
         kind="affine",
         method=factors.method,
         camera_model="affine",
-        projections=projections,
-        rotations=rotations,
-        frame_status=status,
+        projections=cameras.projections,
+        rotations=cameras.rotations,
+        frame_status=cameras.frame_status,
         points=factors.points,
         point_covariances=uncertainty.covariances,
         point_status=uncertainty.status,

@@ -51,15 +51,15 @@ from . import factorization
 from .factorization import AffineFactors
 from ..points import PointStatus
 
-__all__ = ["MAX_STD_RATIO", "MIN_VIEWS", "PointUncertainty", "point_uncertainty"]
+__all__ = ["GAUGE_PARAMETERS", "MAX_STD_RATIO", "MIN_VIEWS", "PointUncertainty", "judge_points", "point_uncertainty"]
 
 #: A point seen in fewer frames than this is unreliable: from 3 frames (6 numbers for its 3 coordinates)
 #: one bad match is not noticed, and a tracker's new track spends its first 2 frames starting.
 MIN_VIEWS = 4
 #: A point whose largest 1σ axis exceeds this fraction of the shape's radius is unreliable.
 MAX_STD_RATIO = 0.25
-# The affine ambiguity of factorization: an invertible 3 × 3 map and a 3D shift.
-_GAUGE_PARAMETERS = 12
+#: The affine ambiguity of factorization: an invertible 3 × 3 map and a 3D shift.
+GAUGE_PARAMETERS = 12
 
 
 @dataclass(frozen=True)
@@ -222,7 +222,7 @@ structure.csv and left out of the plots",)
     # each point's RMS residual length over the frames that saw it
     reprojection_rms = np.where(views > 0, np.sqrt(np.sum(residual**2, axis=(0, 2)) / np.maximum(views, 1)), np.nan)
     observed_coordinates = int(np.count_nonzero(w))
-    parameters = 3 * int(point_ok.sum()) + 8 * int(frame_ok.sum()) - _GAUGE_PARAMETERS
+    parameters = 3 * int(point_ok.sum()) + 8 * int(frame_ok.sum()) - GAUGE_PARAMETERS
     dof = observed_coordinates - parameters
     noise_var = chi_square / dof if dof > 0 else np.nan
 
@@ -239,8 +239,10 @@ structure.csv and left out of the plots",)
         inverse = (eigenvectors / np.maximum(eigenvalues, floor)[:, None, :]) @ eigenvectors.transpose(0, 2, 1)
         covariances[solvable] = noise_var * inverse
 
-    return _judge(reconstruction, covariances, views, reprojection_rms, noise_var, dof, point_ok, frame_ok,
-                  min_views, max_std_ratio)
+    seen = None if point_ok.all() else (reconstruction.observed & frame_ok[:, None]).sum(axis=0)
+    return judge_points(reconstruction.points, covariances, views, seen, reprojection_rms, noise_var, dof, point_ok,
+                        min_views=min_views, max_std_ratio=max_std_ratio,
+                        depth_determined=bool(getattr(reconstruction, "depth_determined", True)))
 
 
 def _complete_unweighted(reconstruction: AffineFactors, min_views: int, max_std_ratio: float) -> PointUncertainty:
@@ -254,7 +256,7 @@ def _complete_unweighted(reconstruction: AffineFactors, min_views: int, max_std_
     squared_per_point = reconstruction.point_residual_sums
     views = np.full(n_points, frames, dtype=np.int64)
     reprojection_rms = np.sqrt(squared_per_point / frames)
-    dof = 2 * frames * n_points - (3 * n_points + 8 * frames - _GAUGE_PARAMETERS)
+    dof = 2 * frames * n_points - (3 * n_points + 8 * frames - GAUGE_PARAMETERS)
     noise_var = float(squared_per_point.sum()) / dof if dof > 0 else np.nan
     rows = motion.reshape(-1, 3)
     normal = rows.T @ rows
@@ -264,27 +266,41 @@ def _complete_unweighted(reconstruction: AffineFactors, min_views: int, max_std_
         floor = max(eigenvalues[-1], np.finfo(float).tiny) * 1e-15
         covariances[:] = noise_var * (eigenvectors / np.maximum(eigenvalues, floor)) @ eigenvectors.T
     everything = np.ones(n_points, dtype=bool)
-    return _judge(reconstruction, covariances, views, reprojection_rms, noise_var, dof, everything,
-                  np.ones(frames, dtype=bool), min_views, max_std_ratio)
+    return judge_points(reconstruction.points, covariances, views, None, reprojection_rms, noise_var, dof, everything,
+                        min_views=min_views, max_std_ratio=max_std_ratio,
+                        depth_determined=bool(getattr(reconstruction, "depth_determined", True)))
 
 
-def _judge(reconstruction: AffineFactors, covariances: np.ndarray, views: np.ndarray, reprojection_rms: np.ndarray,
-           noise_var: float, dof: int, point_ok: np.ndarray, frame_ok: np.ndarray, min_views: int,
-           max_std_ratio: float) -> PointUncertainty:
-    """The status of every point from its views and covariance, relative to the shape's radius."""
-    shape = reconstruction.points
+def judge_points(points: np.ndarray, covariances: np.ndarray, views: np.ndarray, seen: np.ndarray | None,
+                 reprojection_rms: np.ndarray, noise_var: float, dof: int, point_ok: np.ndarray, *,
+                 min_views: int = MIN_VIEWS, max_std_ratio: float = MAX_STD_RATIO,
+                 depth_determined: bool = True) -> PointUncertainty:
+    """The status of every point from its views and covariance, relative to the shape's radius.
+
+    ``points`` (P, 3) the shape (NaN where left out, ``point_ok`` False); ``views`` the frames
+    that each point's estimate used; ``seen`` (P,) the reconstructed frames that observed each
+    point (needed only when some point was left out, to tell ``too_few_views`` from ``degenerate``).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> points = rng.normal(size=(6, 3)) * 10
+    >>> cov = np.broadcast_to(np.eye(3) * 0.01, (6, 3, 3)).copy()
+    >>> u = judge_points(points, cov, np.array([5, 5, 5, 5, 5, 3]), None, np.full(6, 0.5), 0.25, 40, np.ones(6, bool))
+    >>> [PointStatus(s).label for s in u.status]
+    ['ok', 'ok', 'ok', 'ok', 'ok', 'unreliable']
+    """
     well_seen = point_ok & (views >= min_views)
-    reference = shape[well_seen] if well_seen.sum() >= 4 else shape[point_ok]
+    reference = points[well_seen] if well_seen.sum() >= 4 else points[point_ok]
     radius = float(np.median(np.linalg.norm(reference - np.median(reference, axis=0), axis=1))) if len(reference) else np.nan
     status = np.full(len(views), PointStatus.UNRELIABLE, dtype=np.int8)
     if not point_ok.all():
         # a point left out: too few of the reconstructed frames saw it, or it is not linked to them
-        seen = (reconstruction.observed & frame_ok[:, None]).sum(axis=0)
+        assert seen is not None
         status[:] = np.where(point_ok, PointStatus.UNRELIABLE,
                              np.where(seen < 2, PointStatus.TOO_FEW_VIEWS, PointStatus.DEGENERATE))
-    depth_determined = bool(getattr(reconstruction, "depth_determined", True))
     uncertainty = PointUncertainty(covariances, views, status, reprojection_rms, float(np.sqrt(noise_var)), int(dof),
-                                   radius, int(min_views), float(max_std_ratio), depth_determined)
+                                   radius, int(min_views), float(max_std_ratio), bool(depth_determined))
     with np.errstate(invalid="ignore"):
         ok = well_seen & np.isfinite(covariances).all(axis=(1, 2)) & (uncertainty.largest_std <= uncertainty.bound_px)
     if depth_determined:
