@@ -23,7 +23,7 @@ from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import TrackObservations, read_track_observations, read_tracks
 from ..structure import Observations, Reconstruction
-from ..structure.affine.segmented import factorize_segmented, fits_densely
+from ..structure.affine.long_sequence import factorize_long_sequence, fits_dense_factorization
 from ..structure.perspective import reconstruct_perspective
 from ..structure.perspective.segmented import fits_dense_reconstruction, reconstruct_segmented
 from ..tracking import Tracks, smooth_tracks
@@ -160,7 +160,7 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     if isinstance(camera, (Affine, Perspective)) and not request.smooth and request.tracks.suffix.lower() != ".npz":
         observed = read_track_observations(request.tracks)  # a tracker's npz is read densely (and smoothed)
         shape = (observed.frames.size, observed.track_ids.size)
-        if not (fits_densely(shape) if isinstance(camera, Affine) else fits_dense_reconstruction(shape)):
+        if not (fits_dense_factorization(shape) if isinstance(camera, Affine) else fits_dense_reconstruction(shape)):
             return _run_per_observation(request, camera, observed, inputs, clock)
     if perspective is None:
         tracks = read_tracks_for_factorization(request.tracks, smooth=request.smooth)
@@ -213,7 +213,7 @@ def _run_per_observation(request: ReconstructRequest, camera: Affine | Perspecti
                          inputs: list[Path | None], clock: Stopwatch) -> ReconstructRun:
     """A long sequence, too many frames × tracks for dense arrays, reconstructed per observation throughout.
 
-    Affine: factorized frame by frame (:func:`~kalmansfm.structure.affine.segmented.factorize_segmented`);
+    Affine: factorized frame by frame (:func:`~kalmansfm.structure.affine.long_sequence.factorize_long_sequence`);
     perspective: in overlapping windows of frames
     (:func:`~kalmansfm.structure.perspective.segmented.reconstruct_segmented`).
     """
@@ -225,7 +225,7 @@ def _run_per_observation(request: ReconstructRequest, camera: Affine | Perspecti
     source = None
     if isinstance(camera, Affine):
         with clock.step("factorization"):
-            rec = factorize_segmented(observations)
+            rec = factorize_long_sequence(observations)
     else:
         K, source = resolve_intrinsics(observed.frames, camera, observed.image_size)
         with clock.step("perspective reconstruction"), tqdm(total=shape[0], desc="windows of frames", unit="frame",

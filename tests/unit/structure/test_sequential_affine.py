@@ -1,4 +1,4 @@
-"""The segmented affine factorization of long sequences of short tracks (issue 29)."""
+"""The affine factorization of a long sequence of short tracks, frame by frame (issue 29)."""
 
 import numpy as np
 import pytest
@@ -6,9 +6,9 @@ import pytest
 from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
 from kalmansfm.structure import factorize
-from kalmansfm.structure.affine import segmented
+from kalmansfm.structure.affine import long_sequence
 from kalmansfm.errors import NotEnoughDataError
-from kalmansfm.structure.affine.segmented import factorize_segmented, frame_normal_equations, point_normal_equations
+from kalmansfm.structure.affine.long_sequence import factorize_long_sequence, frame_normal_equations, point_normal_equations
 from kalmansfm.structure.affine.sequential import sequential_factors
 from kalmansfm.structure.reconstruction import Observations
 
@@ -78,7 +78,7 @@ def optimum_rms(noise, observations, frames, points):
 def test_sequential_fits_a_sliding_sequence_to_the_noise_level_where_the_dense_path_does_not():
     frame, point, xy, _ = sliding_sequence()
     observations = Observations.from_sparse((300, 900), frame, point, xy)
-    rec = factorize_segmented(observations)
+    rec = factorize_long_sequence(observations)
     dense = factorize(observations.dense())  # its missing-data iterations stop short on short tracks
     assert rec.method == "sequential" and rec.kind == "affine"
     assert rec.registered.sum() >= dense.registered.sum() - 2
@@ -110,7 +110,7 @@ def test_too_few_tracks_to_start_from_are_refused():
 
 def test_gross_errors_are_rejected():
     frame, point, xy, wild = sliding_sequence(outliers=0.01, seed=1)
-    rec = factorize_segmented(Observations.from_sparse((300, 900), frame, point, xy))
+    rec = factorize_long_sequence(Observations.from_sparse((300, 900), frame, point, xy))
     rejected = rec.observations.rejected
     assert rejected[wild].mean() >= 0.9 and rejected[~wild].mean() <= 0.02
     assert 0.45 < rec.noise.std < 0.55
@@ -121,7 +121,7 @@ def test_gross_errors_are_rejected():
 def test_a_turning_camera_is_fitted_to_the_noise():
     frame, point, xy = turning_sequence()
     observations = Observations.from_sparse((300, 400), frame, point, xy)
-    rec = factorize_segmented(observations)
+    rec = factorize_long_sequence(observations)
     dense = factorize(observations.dense())
     assert rec.reprojection_rms <= 1.03 * dense.reprojection_rms
     expected = optimum_rms(0.5, frame.size, rec.registered.sum(), np.isfinite(rec.points[:, 0]).sum())
@@ -138,10 +138,10 @@ def _write(path, frame, point, xy):
     path.write_text("frame,track_id,x,y\n" + rows + "\n")
 
 
-def test_reconstruct_takes_the_segmented_path_for_a_long_sequence(tmp_path, monkeypatch, capsys):
+def test_reconstruct_takes_the_frame_by_frame_path_for_a_long_sequence(tmp_path, monkeypatch, capsys):
     frame, point, xy = turning_sequence()
     _write(tmp_path / "tracks.csv", frame, point, xy)
-    monkeypatch.setattr(segmented, "DENSE_ENTRIES", 10_000)  # 300 x 400 no longer fits densely
+    monkeypatch.setattr(long_sequence, "DENSE_ENTRIES", 10_000)  # 300 x 400 no longer fits densely
     out = tmp_path / "run"
     assert main(["reconstruct", str(tmp_path / "tracks.csv"), "--out", str(out), "--quiet", "--no-plot"]) == 0
     assert sorted(p.name for p in out.iterdir()) == [
@@ -157,7 +157,7 @@ def test_reconstruct_of_a_bad_long_sequence_says_one_line(tmp_path, monkeypatch,
     _write(tmp_path / "tracks.csv", frame, point, xy)
     with open(tmp_path / "tracks.csv", "a") as handle:
         handle.write("61,3,abc,4.0\n")
-    monkeypatch.setattr(segmented, "DENSE_ENTRIES", 100)
+    monkeypatch.setattr(long_sequence, "DENSE_ENTRIES", 100)
     assert main(["reconstruct", str(tmp_path / "tracks.csv"), "--out", str(tmp_path / "run"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "tracks.csv" in err[0] and not (tmp_path / "run").exists()

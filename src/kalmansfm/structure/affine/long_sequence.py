@@ -47,11 +47,11 @@ from .sequential import SequentialFactors, sequential_factors
 from .uncertainty import GAUGE_PARAMETERS, MAX_STD_RATIO, MIN_VIEWS, judge_points
 
 __all__ = ["DENSE_ENTRIES", "OUTLIER_SIGMAS", "POLISH_ITERATIONS", "POLISH_TOL", "FrameSystems", "PointSystems",
-           "factorize_segmented", "fits_densely", "frame_normal_equations",
+           "factorize_long_sequence", "fits_dense_factorization", "frame_normal_equations",
            "point_normal_equations"]
 
 #: Observations over more than this many (frames × points) entries are factorized frame by frame
-#: (:func:`factorize_segmented`), not as one dense array (8 bytes × 2 coordinates an entry, and the
+#: (:func:`factorize_long_sequence`), not as one dense array (8 bytes × 2 coordinates an entry, and the
 #: dense fit's copies).
 DENSE_ENTRIES = 20_000_000
 #: An observation farther from the fit than this many robust σ (the median residual length / √(2 ln 2),
@@ -69,12 +69,12 @@ _REJECTION_ROUNDS = 3
 _CONDITION = 1e-15
 
 
-def fits_densely(shape: tuple[int, int]) -> bool:
+def fits_dense_factorization(shape: tuple[int, int]) -> bool:
     """Whether observations over ``shape`` (frames, points) are factorized as one dense array.
 
     Examples
     --------
-    >>> fits_densely((600, 5000)), fits_densely((20000, 50047))
+    >>> fits_dense_factorization((600, 5000)), fits_dense_factorization((20000, 50047))
     (True, False)
     """
     frames, points = shape
@@ -219,7 +219,7 @@ def _polish(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, fram
 
 
 @single_threaded_blas
-def factorize_segmented(observations: Observations, *, min_views: int = MIN_VIEWS,
+def factorize_long_sequence(observations: Observations, *, min_views: int = MIN_VIEWS,
                         max_std_ratio: float = MAX_STD_RATIO) -> Reconstruction:
     """Affine shape and motion of sparse observations too many for one dense array (see the module notes).
 
@@ -255,7 +255,7 @@ def factorize_segmented(observations: Observations, *, min_views: int = MIN_VIEW
     >>> angle = np.radians(0.2 * np.arange(frames))
     >>> rows = np.stack([np.c_[np.cos(angle), 0 * angle, np.sin(angle)], np.c_[0 * angle, 1 + 0 * angle, 0 * angle]], 1)
     >>> xy = np.einsum("nci,ni->nc", rows[frame], world[point]) + 320 + rng.normal(0, 0.5, (frame.size, 2))
-    >>> rec = factorize_segmented(Observations.from_sparse((frames, tracks), frame, point, xy))
+    >>> rec = factorize_long_sequence(Observations.from_sparse((frames, tracks), frame, point, xy))
     >>> rec.method, int(rec.registered.sum()), bool(rec.reprojection_rms < 1.0)
     ('sequential', 296, True)
     """
