@@ -230,9 +230,9 @@ ESTIMATOR_COPIES = 3
 def check_dense_size(file: Path, n_frames: int, n_tracks: int, n_entries: int, bytes_per_entry: int) -> None:
     """Refuse, with one line naming ``file``, tracks whose dense arrays and the estimators' copies exceed memory.
 
-    Tracks are held as (frames, tracks, ...) arrays from the readers to factorization and
-    calibrated reconstruction; a long sequence of many short tracks fills a tiny share of them
-    (fusion with known cameras reads a CSV per observation instead, :func:`read_track_observations`),
+    A tracker's npz, smoothing, the report and ``--camera auto`` hold tracks as (frames, tracks, ...)
+    arrays; a long sequence of many short tracks fills a tiny share of them (fusion, affine and
+    calibrated reconstruction read such a CSV per observation instead, :func:`read_track_observations`),
     and running out of memory would end in the system killing the process.
     """
     share = n_entries / max(1, n_frames * n_tracks)
@@ -240,8 +240,8 @@ def check_dense_size(file: Path, n_frames: int, n_tracks: int, n_entries: int, b
         float(n_frames) * n_tracks * bytes_per_entry * ESTIMATOR_COPIES,
         f"{where(file)}: {n_frames} frames x {n_tracks} tracks, held as dense frames x tracks arrays "
         f"({n_entries} entries fill {share:.2%} of them) with the estimators' copies",
-        "factorization and calibrated reconstruction hold tracks densely: split the sequence into shorter segments "
-        "of frames (fuse, with known cameras, reads such a CSV per observation)",
+        "fuse, reconstruct --camera affine and --camera perspective read a tracks CSV per observation (without "
+        "--smooth); or split the sequence into shorter segments of frames",
     )
 
 
