@@ -176,7 +176,10 @@ def render_tracked_frames(
         canvas = cv2.resize(image, None, fx=scale, fy=scale, interpolation=interpolation)
         # pixel (x, y) has its centre at ((x + 0.5) * scale - 0.5) on the resized canvas
         first = 0 if trail is None else max(0, f - trail)
-        shown = ((positions[first: f + 1] + 0.5) * scale - 0.5) * _ONE
+        # a shrunken picture draws the path through every (1 / scale)-th frame back from this one: the segments
+        # between the others would be under a pixel long (a long clip's GIF: half the drawing time)
+        stride = max(1, int(1.0 / scale))
+        shown = ((positions[f - (f - first) // stride * stride: f + 1: stride] + 0.5) * scale - 0.5) * _ONE
         marker = max(3.0, round(3 * scale**0.5)) * _ONE
         thickness = max(1, int(round(scale / 3)))
         status = tracks.status[f]
@@ -187,7 +190,7 @@ def render_tracked_frames(
             semi_axes, angles = gate_ellipses(tracks.covariances[f], radius)
             gates = _ellipse_polygons(current, semi_axes * scale * _ONE, angles)
         for color, members in groups:
-            # the path so far: one 2-point line per pair of consecutive known positions (gaps stay open)
+            # the path so far: one 2-point line per pair of consecutive known positions (gaps stay open, but a\n            # shrunken picture's stride bridges one shorter than itself)
             path = shown[:, members]
             pairs = np.stack([path[:-1], path[1:]], axis=2)  # (f, n, 2 ends, 2)
             pairs = pairs[np.isfinite(pairs).all(axis=(2, 3))]

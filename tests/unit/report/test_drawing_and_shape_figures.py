@@ -91,3 +91,23 @@ def test_a_trail_draws_only_the_recent_path():
     start = (30, 12)  # (row, column) on the path near frame 1, far from the current mark at x=88
     assert (whole[start] != 90).any() and (short[start] == 90).all()
     np.testing.assert_array_equal(short[:, 80:], whole[:, 80:])  # the last 5 frames: x from 78
+
+
+def test_a_shrunken_picture_draws_the_path_through_every_stride_th_frame():
+    """Shrunk to half size, the path runs through every second frame back from the drawn one: moving the
+    positions of the frames in between changes nothing, moving one on the stride does."""
+    tracks = Tracks.empty(41, 1)
+    xs = 10.0 + 4.0 * np.arange(41)
+    tracks.states[:, 0, 0], tracks.states[:, 0, 1] = xs, 60.0
+    tracks.covariances[:] = np.eye(4)
+    tracks.status[:] = MEASURED
+    tracks = tracks.replace(positions=tracks.states[..., :2].copy())
+    blank = [np.full((120, 200), 90, np.uint8)] * 41
+    (drawn,) = render_tracked_frames(blank, tracks, [40], target_width=100, trail=None)
+    between, on_stride = tracks.positions.copy(), tracks.positions.copy()
+    between[1:40:2, 0, 1] += 30.0  # frames 39, 37, …: off the stride back from frame 40
+    on_stride[20, 0, 1] += 30.0
+    (same,) = render_tracked_frames(blank, tracks.replace(positions=between), [40], target_width=100, trail=None)
+    (moved,) = render_tracked_frames(blank, tracks.replace(positions=on_stride), [40], target_width=100, trail=None)
+    np.testing.assert_array_equal(same, drawn)
+    assert (moved != drawn).any()
