@@ -43,6 +43,7 @@ import numpy as np
 
 from .._validation import check_fits_in_memory
 from ..errors import InvalidInputError
+from ..structure.reconstruction import Observations
 from ..tracking.settings import TrackerSettings
 from ..tracking.tracks import (
     LOST,
@@ -436,11 +437,10 @@ class TrackObservations:
     xy: np.ndarray
     image_size: tuple[int, int] | None = None
 
-    def dense(self) -> np.ndarray:
-        """(F, P, 2) positions, NaN where a track has no observation (:meth:`Tracks.observations`' layout)."""
-        out = np.full((self.frames.size, self.track_ids.size, 2), np.nan)
-        out[self.frame, self.track] = self.xy
-        return out
+    def observations(self) -> Observations:
+        """The estimators' record of these observations, (frames, tracks) by index (``.dense()`` gives the
+        (F, P, 2) positions of :meth:`Tracks.observations`)."""
+        return Observations.from_sparse((self.frames.size, self.track_ids.size), self.frame, self.track, self.xy)
 
 
 def read_track_observations(path: str | os.PathLike[str]) -> TrackObservations:
@@ -459,7 +459,7 @@ def read_track_observations(path: str | os.PathLike[str]) -> TrackObservations:
     >>> obs = read_track_observations(f)
     >>> obs.frames.tolist(), obs.track_ids.tolist(), obs.frame.tolist(), obs.track.tolist()
     ([0, 1], [7, 9], [0, 1, 1], [0, 0, 1])
-    >>> np.array_equal(obs.dense(), read_tracks(f).observations(), equal_nan=True)
+    >>> np.array_equal(obs.observations().dense(), read_tracks(f).observations(), equal_nan=True)
     True
     """
     file = Path(path)

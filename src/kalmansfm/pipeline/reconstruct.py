@@ -22,7 +22,7 @@ from ..errors import InvalidInputError, NotEnoughDataError
 from ..io.atomic import check_output_directory, output_directory
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import TrackObservations, read_track_observations, read_tracks
-from ..structure import Observations, Reconstruction
+from ..structure import Reconstruction
 from ..structure.affine.long_sequence import factorize_long_sequence, fits_dense_factorization
 from ..structure.perspective import reconstruct_perspective
 from ..structure.perspective.segmented import fits_dense_reconstruction, reconstruct_segmented
@@ -218,7 +218,7 @@ def _run_per_observation(request: ReconstructRequest, camera: Affine | Perspecti
     (:func:`~kalmansfm.structure.perspective.segmented.reconstruct_segmented`).
     """
     shape = (observed.frames.size, observed.track_ids.size)
-    observations = Observations.from_sparse(shape, observed.frame, observed.track, observed.xy)
+    observations = observed.observations()
     how = "factorized frame by frame" if isinstance(camera, Affine) else "reconstructed in windows of frames"
     log.info("read %d observations over %d frames x %d tracks from %s: %s", observed.frame.size, *shape,
              request.tracks, how)

@@ -208,7 +208,7 @@ def test_observations_are_read_per_observation_where_dense_arrays_would_not_fit(
     with pytest.raises(InvalidInputError, match="split the sequence"):
         read_tracks(csv)
     sparse = read_track_observations(csv)
-    assert sparse.frame.size == 20 and np.array_equal(sparse.dense(), dense, equal_nan=True)
+    assert sparse.frame.size == 20 and np.array_equal(sparse.observations().dense(), dense, equal_nan=True)
 
 
 def test_a_plain_observations_file_reads_the_same_through_numpy_and_its_faults_through_the_general_reader(tmp_path):
