@@ -155,17 +155,38 @@ def grey_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(image.astype(np.float64) / 257.0), 0, 255).astype(np.uint8)
 
 
-def _decode_image(path: Path) -> np.ndarray:
+def decode_image_file(path: Path, *flags: int) -> np.ndarray | None:
+    """The image in the file ``path`` decoded by OpenCV with the first of ``flags`` that succeeds (None if none does).
+
+    The file is read by NumPy, not ``cv2.imread``, which crashes on names that are not UTF-8; the decoders'
+    own messages are silenced (:func:`quiet_decoders`).  A file that cannot be read raises InvalidInputError.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> f = Path(tempfile.mkdtemp()) / "a.png"
+    >>> _ = f.write_bytes(cv2.imencode(".png", np.full((2, 3), 7, np.uint8))[1].tobytes())
+    >>> empty = f.with_name("empty.png"); _ = empty.write_bytes(b"")
+    >>> decode_image_file(f, cv2.IMREAD_UNCHANGED).shape, decode_image_file(empty, cv2.IMREAD_UNCHANGED) is None
+    ((2, 3), True)
+    """
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise InvalidInputError(f"{where(path)}: cannot read the image ({exc.strerror or exc})") from None
-    image = None
-    if data.size:
-        with quiet_decoders():
-            image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
-            if image is None:  # e.g. a 32-bit float TIFF, which only an unchanged read gives
-                image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if not data.size:
+        return None
+    with quiet_decoders():
+        for flag in flags:
+            image = cv2.imdecode(data, flag)
+            if image is not None:
+                return image
+    return None
+
+
+def _decode_image(path: Path) -> np.ndarray:
+    # unchanged: e.g. a 32-bit float TIFF, which only an unchanged read gives
+    image = decode_image_file(path, cv2.IMREAD_GRAYSCALE, cv2.IMREAD_UNCHANGED)
     if image is None or image.ndim not in (2, 3) or image.size == 0:
         raise InvalidInputError(f"{where(path)}: not a readable image (empty, truncated or not an image)")
     if image.ndim == 3 and image.shape[2] not in (3, 4):

@@ -25,7 +25,7 @@ from ..structure.geometry.pinhole import CameraSet
 from ..tracking.tracks import Tracks
 from ._csv import read_rows, where
 from .cameras import read_cameras
-from .frames import is_frames_video, quiet_decoders, read_frames
+from .frames import decode_image_file, is_frames_video, read_frames
 from .ground_truth import POINTS_FILE, TRACKS_FILE, read_ground_truth_tracks
 from .paths import path_problem
 from .structure import CameraMotion, PointTable, read_motion_csv, read_points_table
@@ -85,14 +85,7 @@ class RunFolder:
             return [np.asarray(frame) for frame in read_frames(self.frames_video, min_frames=1)]
         frames = []
         for path in self.frame_paths:
-            try:
-                data = np.fromfile(path, dtype=np.uint8)  # not cv2.imread: OpenCV crashes on names that are not UTF-8
-            except OSError as exc:
-                raise InvalidInputError(f"{where(path)}: cannot be read ({exc.strerror or exc})") from None
-            image = None
-            if data.size:
-                with quiet_decoders():
-                    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+            image = decode_image_file(path, cv2.IMREAD_UNCHANGED)
             if image is None:
                 raise InvalidInputError(f"{where(path)}: cannot be read as a PNG image")
             if image.dtype != np.uint8:
