@@ -122,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
           + (f" ({s.iterations} iterations)" if s.method in ("als", "sequential") else "")
           + ("  weighted by tracker std" if s.weighted else "")
           + ("  smoothed" if s.smoothed is not False else ""))
-    print(f"singular values: {shown}")
+    if shown:  # the frame-by-frame factorization of a long sequence forms no measurement matrix
+        print(f"singular values: {shown}")
     print(f"rank-3 residual: {s.reprojection_rms_px:.4f} px RMS")
     print_warnings(result.summary)
     print(f"wrote {args.out}")

@@ -150,6 +150,8 @@ def test_reconstruct_takes_the_frame_by_frame_path_for_a_long_sequence(tmp_path,
     assert summary.method == "sequential" and summary.frames == len(np.unique(frame)) and summary.points == 400
     assert summary.reprojection_rms_px < 0.7
     assert np.loadtxt(out / "motion.csv", delimiter=",", skiprows=1).shape == (summary.registered_frames, 9)
+    printed = capsys.readouterr().out
+    assert "method: sequential (" in printed and "singular values" not in printed  # no measurement matrix is formed
 
 
 def test_reconstruct_of_a_bad_long_sequence_says_one_line(tmp_path, monkeypatch, capsys):
