@@ -105,3 +105,18 @@ def test_tracks_beyond_the_dense_threshold_take_the_segmented_path(tmp_path, cap
     p = read_summary(tmp_path / "run" / "summary.json").reconstruction
     assert p.method == "segmented" and p.registered_frames > 0.97 * obs.shape[0]
     assert p.noise_std == pytest.approx(0.5, rel=0.1)
+
+
+def test_auto_on_a_long_sequence_runs_both_models_per_observation_and_keeps_the_better(files, capsys):
+    """``--camera auto`` takes the per-observation path too (the perspective threshold is the one exceeded
+    here): the affine model is factorized frame by frame, the perspective one in windows, and the perspective
+    one — whose model the sliding scene follows — is kept, with the affine one's RMS in the choice."""
+    argv = args(files)
+    argv[argv.index("perspective")] = "auto"
+    assert main(argv) == 0
+    assert "camera: perspective: reprojection RMS" in capsys.readouterr().out
+    p = read_summary(files / "run" / "summary.json").reconstruction
+    assert p.kind == "perspective" and p.method == "segmented"
+    assert "<= the affine model's" in p.camera_choice
+    affine_rms = float(p.camera_choice.split("the affine model's ")[1].split(" px")[0])
+    assert p.reprojection_rms_px <= affine_rms < 2.0  # the frame-by-frame factorization fits too (rank 3)

@@ -231,9 +231,9 @@ ESTIMATOR_COPIES = 3
 def check_dense_size(file: Path, n_frames: int, n_tracks: int, n_entries: int, bytes_per_entry: int) -> None:
     """Refuse, with one line naming ``file``, tracks whose dense arrays and the estimators' copies exceed memory.
 
-    A tracker's npz, smoothing, the report and ``--camera auto`` hold tracks as (frames, tracks, ...)
-    arrays; a long sequence of many short tracks fills a tiny share of them (fusion, affine and
-    calibrated reconstruction read such a CSV per observation instead, :func:`read_track_observations`),
+    A tracker's npz, smoothing and the report hold tracks as (frames, tracks, ...) arrays; a long
+    sequence of many short tracks fills a tiny share of them (fusion and reconstruction read such a
+    CSV per observation instead, :func:`read_track_observations`),
     and running out of memory would end in the system killing the process.
     """
     share = n_entries / max(1, n_frames * n_tracks)
@@ -241,8 +241,8 @@ def check_dense_size(file: Path, n_frames: int, n_tracks: int, n_entries: int, b
         float(n_frames) * n_tracks * bytes_per_entry * ESTIMATOR_COPIES,
         f"{where(file)}: {n_frames} frames x {n_tracks} tracks, held as dense frames x tracks arrays "
         f"({n_entries} entries fill {share:.2%} of them) with the estimators' copies",
-        "fuse, reconstruct --camera affine and --camera perspective read a tracks CSV per observation (without "
-        "--smooth); or split the sequence into shorter segments of frames",
+        "fuse and reconstruct read a tracks CSV per observation (without --smooth); or split the sequence into "
+        "shorter segments of frames",
     )
 
 

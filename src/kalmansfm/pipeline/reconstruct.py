@@ -6,6 +6,11 @@ report's recursive fusion, :func:`~kalmansfm.structure.perspective.reconstruct.r
 and ``auto``, which runs both and keeps the perspective model when its reprojection RMS
 over its inliers is at most the affine model's over all observations (and the affine one
 when the perspective reconstruction is impossible, e.g. without parallax).
+
+A CSV of a long sequence of short tracks, too many frames × tracks for dense arrays for a model
+asked for, is read and reconstructed per observation throughout: affine frame by frame
+(:func:`~kalmansfm.structure.affine.long_sequence.factorize_long_sequence`), perspective in
+windows of frames (:func:`~kalmansfm.structure.perspective.segmented.reconstruct_segmented`).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from .._version import __version__
@@ -44,8 +50,8 @@ class ReconstructRun:
     ``reconstruction`` is the model written; with an :class:`~kalmansfm.pipeline.requests.Auto`
     camera ``alternative`` is the other one (None otherwise, or when it was impossible).  ``tracks``
     are per observation (:class:`~kalmansfm.io.tracks.TrackObservations`) when a long sequence, too
-    many frames × tracks for dense arrays, was reconstructed per observation (affine: frame by frame;
-    perspective: in windows of frames).
+    many frames × tracks for dense arrays for a model asked for, was reconstructed per observation
+    (affine: frame by frame; perspective: in windows of frames).
     """
 
     out_dir: Path
@@ -157,30 +163,38 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     check_output_directory(request.out, inputs=inputs)
     clock = Stopwatch()
     name = request.tracks.name
-    if isinstance(camera, (Affine, Perspective)) and not request.smooth and request.tracks.suffix.lower() != ".npz":
-        observed = read_track_observations(request.tracks)  # a tracker's npz is read densely (and smoothed)
+    tracks: Tracks | TrackObservations | None = None
+    if not request.smooth and request.tracks.suffix.lower() != ".npz":  # a tracker's npz is read densely (smoothed)
+        observed = read_track_observations(request.tracks)
         shape = (observed.frames.size, observed.track_ids.size)
-        if not (fits_dense_factorization(shape) if isinstance(camera, Affine) else fits_dense_reconstruction(shape)):
-            return _run_per_observation(request, camera, observed, inputs, clock)
-    if perspective is None:
-        tracks = read_tracks_for_factorization(request.tracks, smooth=request.smooth)
-    else:
-        tracks = read_tracks_for_factorization(request.tracks, smooth=bool(request.smooth))
+        if (affine is not None and not fits_dense_factorization(shape)) \
+                or (perspective is not None and not fits_dense_reconstruction(shape)):
+            tracks = observed  # a long sequence, too many frames x tracks for dense arrays: per observation throughout
+            log.info("read %d observations over %d frames x %d tracks from %s: reconstructed per observation "
+                     "(affine frame by frame, perspective in windows of frames)", observed.frame.size, *shape,
+                     request.tracks)
+    if tracks is None:
+        tracks = read_tracks_for_factorization(request.tracks, smooth=request.smooth if perspective is None
+                                               else bool(request.smooth))
+        log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, request.tracks)
+    per_observation = isinstance(tracks, TrackObservations)
+    if perspective is not None:
         K, source = resolve_intrinsics(tracks.frames, perspective, tracks.image_size)
     made_from = run_source(request.tracks, [p for p in inputs if p is not None], request_options(request))
-    log.info("read %d frames x %d tracks from %s", tracks.n_frames, tracks.n_tracks, request.tracks)
     factorized: Reconstruction | None = None
     calibrated: Reconstruction | None = None
     if affine is not None:
         with clock.step("factorization"):
-            factorized = factorize_tracks(tracks, weighted=affine.weighted and tracks.covariances is not None,
-                                          max_iterations=affine.max_iterations, progress=request.progress)
+            if isinstance(tracks, TrackObservations):
+                factorized = factorize_long_sequence(tracks.observations()).with_ids(tracks.frames, tracks.track_ids)
+            else:
+                factorized = factorize_tracks(tracks, weighted=affine.weighted and tracks.covariances is not None,
+                                              max_iterations=affine.max_iterations, progress=request.progress)
     choice = None
     if perspective is not None:
         with clock.step("perspective reconstruction"):
             try:
-                calibrated = reconstruct_perspective(tracks.observations(), K, settings=perspective.settings)
-                calibrated = calibrated.with_ids(tracks.frames, tracks.track_ids)
+                calibrated = _calibrated(tracks, K, perspective, request.progress)
             except NotEnoughDataError as exc:
                 if affine is None:
                     raise
@@ -195,12 +209,14 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     chosen = calibrated if use_perspective else factorized
     other = factorized if use_perspective else calibrated
     assert chosen is not None
-    metrics = reconstruction_metrics(chosen, smoothed=tracks.smoothed if chosen.kind == "affine" else None,
+    smoothed = False if per_observation else tracks.smoothed
+    metrics = reconstruction_metrics(chosen, smoothed=smoothed if chosen.kind == "affine" else None,
                                      intrinsics=source if use_perspective else None,
                                      camera_choice=choice if use_perspective else None)
     warnings = () if use_perspective or choice is None else (f"camera model chosen automatically: {choice}",)
-    summary = RunSummary(command="reconstruct", input=str(request.tracks), source=made_from, settings=tracks.settings,
-                         smoothed=tracks.smoothed, reconstruction=metrics, warnings=warnings)
+    summary = RunSummary(command="reconstruct", input=str(request.tracks), source=made_from,
+                         settings=None if per_observation else tracks.settings, smoothed=smoothed,
+                         reconstruction=metrics, warnings=warnings)
     with output_directory(request.out, inputs=inputs) as out:
         with clock.step("writing"):
             names = stage_reconstruction(out, chosen, comment=f"kalmansfm {__version__} from {name}", plot=request.plot,
@@ -209,37 +225,15 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     return ReconstructRun(request.out, tracks, chosen, summary, other)
 
 
-def _run_per_observation(request: ReconstructRequest, camera: Affine | Perspective, observed: TrackObservations,
-                         inputs: list[Path | None], clock: Stopwatch) -> ReconstructRun:
-    """A long sequence, too many frames × tracks for dense arrays, reconstructed per observation throughout.
-
-    Affine: factorized frame by frame (:func:`~kalmansfm.structure.affine.long_sequence.factorize_long_sequence`);
-    perspective: in overlapping windows of frames
-    (:func:`~kalmansfm.structure.perspective.segmented.reconstruct_segmented`).
-    """
-    shape = (observed.frames.size, observed.track_ids.size)
-    observations = observed.observations()
-    how = "factorized frame by frame" if isinstance(camera, Affine) else "reconstructed in windows of frames"
-    log.info("read %d observations over %d frames x %d tracks from %s: %s", observed.frame.size, *shape,
-             request.tracks, how)
-    source = None
-    if isinstance(camera, Affine):
-        with clock.step("factorization"):
-            rec = factorize_long_sequence(observations)
-    else:
-        K, source = resolve_intrinsics(observed.frames, camera, observed.image_size)
-        with clock.step("perspective reconstruction"), tqdm(total=shape[0], desc="windows of frames", unit="frame",
-                                                             disable=not request.progress, leave=False) as bar:
-            rec = reconstruct_segmented(observations, K, camera.settings,
-                                        progress=lambda done, _: bar.update(done - bar.n))
-    rec = rec.with_ids(observed.frames, observed.track_ids)
-    made_from = run_source(request.tracks, [p for p in inputs if p is not None], request_options(request))
-    metrics = reconstruction_metrics(rec, intrinsics=source, smoothed=False if isinstance(camera, Affine) else None)
-    summary = RunSummary(command="reconstruct", input=str(request.tracks), source=made_from, smoothed=False,
-                         reconstruction=metrics)
-    with output_directory(request.out, inputs=inputs) as out:
-        with clock.step("writing"):
-            names = stage_reconstruction(out, rec, comment=f"kalmansfm {__version__} from {request.tracks.name}",
-                                         plot=request.plot, image_size=observed.image_size)
-        summary = stage_summary(out, summary, clock, names)
-    return ReconstructRun(request.out, observed, rec, summary)
+def _calibrated(tracks: Tracks | TrackObservations, K: np.ndarray, camera: Perspective, progress: bool
+                ) -> Reconstruction:
+    """The calibrated reconstruction of the tracks: dense, or a long sequence's in windows of frames
+    (:func:`~kalmansfm.structure.perspective.segmented.reconstruct_segmented`), with the tracks' ids."""
+    if isinstance(tracks, Tracks):
+        return reconstruct_perspective(tracks.observations(), K, settings=camera.settings).with_ids(
+            tracks.frames, tracks.track_ids)
+    with tqdm(total=tracks.frames.size, desc="windows of frames", unit="frame", disable=not progress,
+              leave=False) as bar:
+        rec = reconstruct_segmented(tracks.observations(), K, camera.settings,
+                                    progress=lambda done, _: bar.update(done - bar.n))
+    return rec.with_ids(tracks.frames, tracks.track_ids)
