@@ -201,10 +201,13 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
                 choice = f"affine: the perspective reconstruction was impossible ({exc})"
     if factorized is not None and calibrated is not None:
         affine_rms, rms = factorized.reprojection_rms, calibrated.reprojection_rms
+        # as many significant digits as tell the two apart (3 at least)
+        digits = next((d for d in range(3, 10) if f"{rms:.{d}g}" != f"{affine_rms:.{d}g}"), 10)
+        a, p = f"{affine_rms:.{digits}g}", f"{rms:.{digits}g}"
         if rms <= affine_rms:
-            choice = f"perspective: reprojection RMS {rms:.3g} px over its inliers <= the affine model's {affine_rms:.3g} px"
+            choice = f"perspective: reprojection RMS {p} px over its inliers <= the affine model's {a} px"
         else:
-            choice = f"affine: reprojection RMS {affine_rms:.3g} px < the perspective model's {rms:.3g} px over its inliers"
+            choice = f"affine: reprojection RMS {a} px < the perspective model's {p} px over its inliers"
     use_perspective = calibrated is not None and (affine is None or (choice or "").startswith("perspective"))
     chosen = calibrated if use_perspective else factorized
     other = factorized if use_perspective else calibrated
