@@ -6,6 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
+from cli_run import exit_code
 from kalmansfm.cli.main import main
 from kalmansfm.io import load_run, read_summary
 from kalmansfm.io.cameras import MATRIX_COLUMNS, cameras_csv, read_cameras
@@ -25,14 +26,6 @@ def scene_files(tmp_path):
     (tmp_path / "cameras.csv").write_text(cameras_csv(cams))
     (tmp_path / "tracks.csv").write_text(observations_csv(s.observations, frames, np.arange(60) + 100))
     return s, tmp_path
-
-
-def exit_code(argv):
-    """main's exit code; argparse's own usage errors leave through SystemExit(2)."""
-    try:
-        return main(argv)
-    except SystemExit as exc:
-        return exc.code
 
 
 def fuse_args(folder, *more):

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from cli_run import exit_code
 from kalmansfm.cli.main import main
 from kalmansfm.io import load_run, read_summary
 from kalmansfm.io.intrinsics import intrinsics_csv, read_intrinsics
@@ -31,13 +32,6 @@ def files(tmp_path, scene):
     (tmp_path / "tracks.csv").write_text(tracks_text(scene.observations, frames))
     (tmp_path / "K.csv").write_text(intrinsics_csv(frames, scene.intrinsics))
     return tmp_path
-
-
-def exit_code(argv):
-    try:
-        return main(argv)
-    except SystemExit as exc:
-        return exc.code
 
 
 def args(folder, *more):

@@ -7,6 +7,7 @@ long video's tracks take (issue 29).
 import numpy as np
 import pytest
 
+from cli_run import exit_code
 from kalmansfm.cli.main import main
 from kalmansfm.io import read_summary
 from kalmansfm.io.cameras import read_cameras
@@ -37,13 +38,6 @@ def files(tmp_path, scene, monkeypatch):
     frames = np.arange(obs.shape[0]) + FIRST_FRAME
     (tmp_path / "K.csv").write_text(intrinsics_csv(frames, scene.cameras.decompose().intrinsics))
     return tmp_path
-
-
-def exit_code(argv):
-    try:
-        return main(argv)
-    except SystemExit as exc:
-        return exc.code
 
 
 def args(folder, *more):
