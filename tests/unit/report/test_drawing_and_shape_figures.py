@@ -76,15 +76,19 @@ def test_robust_half_width_holds_all_of_a_set_without_stray_points(count):
     assert (np.abs(points - centre) <= half).all()
 
 
+def one_moving_track(frames: int, step: float, row: float) -> Tracks:
+    """One measured track moving right by ``step`` px a frame from x = 10 along image row ``row``."""
+    tracks = Tracks.empty(frames, 1)
+    tracks.states[:, 0, 0], tracks.states[:, 0, 1] = 10.0 + step * np.arange(frames), row
+    tracks.covariances[:] = np.eye(4)
+    tracks.status[:] = MEASURED
+    return tracks.replace(positions=tracks.states[..., :2].copy())
+
+
 def test_a_trail_draws_only_the_recent_path():
     """A track that moved right along 40 frames: with a trail of 5 the start of its path is not drawn,
     with the whole path (trail=None) it is; the current mark is the same in both."""
-    tracks = Tracks.empty(40, 1)
-    xs = 10.0 + 2.0 * np.arange(40)
-    tracks.states[:, 0, 0], tracks.states[:, 0, 1] = xs, 30.0
-    tracks.covariances[:] = np.eye(4)
-    tracks.status[:] = MEASURED
-    tracks = tracks.replace(positions=tracks.states[..., :2].copy())
+    tracks = one_moving_track(40, step=2.0, row=30.0)
     blank = [np.full((60, 100), 90, np.uint8)] * 40
     (short,) = render_tracked_frames(blank, tracks, [39], target_width=100, trail=5)
     (whole,) = render_tracked_frames(blank, tracks, [39], target_width=100, trail=None)
@@ -96,12 +100,7 @@ def test_a_trail_draws_only_the_recent_path():
 def test_a_shrunken_picture_draws_the_path_through_every_stride_th_frame():
     """Shrunk to half size, the path runs through every second frame back from the drawn one: moving the
     positions of the frames in between changes nothing, moving one on the stride does."""
-    tracks = Tracks.empty(41, 1)
-    xs = 10.0 + 4.0 * np.arange(41)
-    tracks.states[:, 0, 0], tracks.states[:, 0, 1] = xs, 60.0
-    tracks.covariances[:] = np.eye(4)
-    tracks.status[:] = MEASURED
-    tracks = tracks.replace(positions=tracks.states[..., :2].copy())
+    tracks = one_moving_track(41, step=4.0, row=60.0)
     blank = [np.full((120, 200), 90, np.uint8)] * 41
     (drawn,) = render_tracked_frames(blank, tracks, [40], target_width=100, trail=None)
     between, on_stride = tracks.positions.copy(), tracks.positions.copy()
