@@ -186,7 +186,13 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
     if affine is not None:
         with clock.step("factorization"):
             if isinstance(tracks, TrackObservations):
-                factorized = factorize_long_sequence(tracks.observations()).with_ids(tracks.frames, tracks.track_ids)
+                with tqdm(desc="factorization", unit="step", disable=not request.progress, leave=False) as bar:
+                    def advance(done: int, most: int) -> None:
+                        bar.total = most
+                        bar.update(done - bar.n)
+
+                    factorized = factorize_long_sequence(tracks.observations(), progress=advance)
+                factorized = factorized.with_ids(tracks.frames, tracks.track_ids)
             else:
                 factorized = factorize_tracks(tracks, weighted=affine.weighted and tracks.covariances is not None,
                                               max_iterations=affine.max_iterations, progress=request.progress)

@@ -110,7 +110,12 @@ def test_too_few_tracks_to_start_from_are_refused():
 
 def test_gross_errors_are_rejected():
     frame, point, xy, wild = sliding_sequence(outliers=0.01, seed=1)
-    rec = factorize_long_sequence(Observations.from_sparse((300, 900), frame, point, xy))
+    steps = []
+    rec = factorize_long_sequence(Observations.from_sparse((300, 900), frame, point, xy),
+                                  progress=lambda done, most: steps.append((done, most)))
+    # the progress: one step for the frame-by-frame pass, one per polish iteration, counted against a fixed budget
+    assert [d for d, _ in steps] == list(range(1, len(steps) + 1)) and len({m for _, m in steps}) == 1
+    assert steps[-1][0] == 1 + rec.details.iterations <= steps[-1][1]
     rejected = rec.observations.rejected
     assert rejected[wild].mean() >= 0.9 and rejected[~wild].mean() <= 0.02
     assert 0.45 < rec.noise.std < 0.55

@@ -29,6 +29,7 @@ whole measurement matrix are computed (there is none), so the dense path's rank 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -195,8 +196,8 @@ class _Polished:
 
 
 def _polish(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, frame: np.ndarray, point: np.ndarray,
-            xy: np.ndarray, taking_part: np.ndarray) -> _Polished:
-    """Alternating least squares over the observations ``taking_part`` until the cost settles."""
+            xy: np.ndarray, taking_part: np.ndarray, tick: Callable[[], object]) -> _Polished:
+    """Alternating least squares over the observations ``taking_part`` until the cost settles (``tick`` after each)."""
     n_frames, n_points = motion.shape[0], shape.shape[0]
     previous = np.inf
     converged = False
@@ -209,6 +210,7 @@ def _polish(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, fram
         motion, translation = _solve_frames(frame_normal_equations(shape, frame[sel], point[sel], xy[sel], n_frames),
                                            motion, translation)
         iterations += 1
+        tick()
         residual = _residuals(motion, translation, shape, frame[taking_part], point[taking_part], xy[taking_part])
         cost = float(np.sum(np.square(residual[np.isfinite(residual)])))
         if abs(previous - cost) <= POLISH_TOL * cost:
@@ -220,7 +222,8 @@ def _polish(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, fram
 
 @single_threaded_blas
 def factorize_long_sequence(observations: Observations, *, min_views: int = MIN_VIEWS,
-                        max_std_ratio: float = MAX_STD_RATIO) -> Reconstruction:
+                            max_std_ratio: float = MAX_STD_RATIO,
+                            progress: Callable[[int, int], object] | None = None) -> Reconstruction:
     """Affine shape and motion of sparse observations too many for one dense array (see the module notes).
 
     Parameters
@@ -229,6 +232,8 @@ def factorize_long_sequence(observations: Observations, *, min_views: int = MIN_
         (:meth:`~kalmansfm.structure.reconstruction.Observations.from_sparse`); frames = the
         observations' first axis, in sequence order.
     min_views, max_std_ratio : the reliability bound of :func:`~kalmansfm.structure.factorize`.
+    progress : called with (steps done, steps at most) after the frame-by-frame pass and after each
+        polish iteration, e.g. for a progress bar.
 
     Returns
     -------
@@ -260,12 +265,22 @@ def factorize_long_sequence(observations: Observations, *, min_views: int = MIN_
     ('sequential', 296, True)
     """
     frame, point, xy = observations.frame, observations.point, observations.xy
+    budget = 1 + _REJECTION_ROUNDS * POLISH_ITERATIONS
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, budget)
+
     start = sequential_factors(frame, point, xy, observations.shape)
+    tick()
     motion, translation, shape = start.motion, start.translation, start.shape
     rejected = start.rejected
     iterations, converged = 0, True
     for _ in range(_REJECTION_ROUNDS):
-        polished = _polish(motion, translation, shape, frame, point, xy, ~rejected)
+        polished = _polish(motion, translation, shape, frame, point, xy, ~rejected, tick)
         motion, translation, shape = polished.motion, polished.translation, polished.shape
         iterations += polished.iterations
         converged = polished.converged
