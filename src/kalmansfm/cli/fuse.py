@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
                                   history=True, chunk_points=args.chunk_points, noise_model=args.noise_model,
                                   track_scales=args.track_scales)
     result = run_fuse(FuseRequest(args.tracks, args.cameras, args.out, settings, scheduler=args.scheduler,
-                                  workers=args.workers, plot=not args.no_plot))
+                                  workers=args.workers, plot=not args.no_plot, progress=not args.quiet))
     f = result.summary.reconstruction
     assert f is not None  # run_fuse always records its reconstruction
     print(f"views: {f.frames}  tracks: {f.points}  method: {f.method}")

@@ -7,6 +7,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np  # noqa: F401 (the examples use it)
+from tqdm import tqdm
 
 from .._version import __version__
 from ..io.atomic import check_output_directory, output_directory
@@ -19,7 +20,7 @@ from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .evaluate import reconstruction_metrics
 from .reconstruct import tracks_file
 from .requests import FuseRequest, request_options
-from .stage import Stopwatch, stage_reconstruction, stage_summary
+from .stage import Stopwatch, bar_of_passes, stage_reconstruction, stage_summary
 
 __all__ = ["FuseRun", "run_fuse"]
 
@@ -85,12 +86,15 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     views, points = data.observations.shape
     log.info("fusing %d tracks over %d views (%s)", points, views, settings.method)
     observations = data.observations  # per observation: fuse holds them densely only where that is small
-    with clock.step("fusion"):
+    with clock.step("fusion"), tqdm(total=points, desc="fusion", unit="point", disable=not request.progress,
+                                    leave=False) as bar:
+        advance = bar_of_passes(bar)
         if request.scheduler is None and request.workers is None:
-            rec = fuse(observations, data.cameras, settings=settings)
+            rec = fuse(observations, data.cameras, settings=settings, progress=advance)
         else:
             with dask_client(request.scheduler, request.workers) as client:
-                rec = fuse(observations, data.cameras, settings=settings, executor=ScatteringExecutor(client))
+                rec = fuse(observations, data.cameras, settings=settings, executor=ScatteringExecutor(client),
+                           progress=advance)
     rec = rec.with_ids(track_ids=data.track_ids)
     metrics = reconstruction_metrics(rec, skipped_frames=tuple(int(f) for f in data.frames_without_camera))
     summary = RunSummary(command="fuse", input=f"{request.tracks} with cameras {request.cameras}", source=source,

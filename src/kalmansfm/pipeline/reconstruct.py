@@ -36,7 +36,7 @@ from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, reconstruction_metrics
 from .perspective import resolve_intrinsics
 from .requests import Affine, Auto, Perspective, ReconstructRequest, request_options
-from .stage import Stopwatch, stage_reconstruction, stage_summary
+from .stage import Stopwatch, bar_of_passes, stage_reconstruction, stage_summary
 
 __all__ = ["ReconstructRun", "read_tracks_for_factorization", "run_reconstruct", "tracks_file"]
 
@@ -242,7 +242,9 @@ def _calibrated(tracks: Tracks | TrackObservations, K: np.ndarray, camera: Persp
         return reconstruct_perspective(tracks.observations(), K, settings=camera.settings).with_ids(
             tracks.frames, tracks.track_ids)
     with tqdm(total=tracks.frames.size, desc="windows of frames", unit="frame", disable=not progress,
-              leave=False) as bar:
+              leave=False) as bar, tqdm(total=tracks.track_ids.size, desc="fusion", unit="point",
+                                         disable=not progress, leave=False) as fusion_bar:
         rec = reconstruct_segmented(tracks.observations(), K, camera.settings,
-                                    progress=lambda done, _: bar.update(done - bar.n))
+                                    progress=lambda done, _: bar.update(done - bar.n),
+                                    fusion_progress=bar_of_passes(fusion_bar))
     return rec.with_ids(tracks.frames, tracks.track_ids)

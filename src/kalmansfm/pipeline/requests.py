@@ -195,6 +195,7 @@ class FuseRequest:
     scheduler, workers : fuse the chunks on Dask — an existing scheduler's address, or a local
         cluster of ``workers`` processes (not both); neither: in this process.
     plot : draw fusion.png.
+    progress : a progress bar on stderr.
     """
 
     tracks: Path
@@ -204,6 +205,7 @@ class FuseRequest:
     scheduler: str | None = None
     workers: int | None = None
     plot: bool = True
+    progress: bool = False
 
     def __post_init__(self) -> None:
         for name in ("tracks", "cameras", "out"):

@@ -8,10 +8,11 @@ return their names, which the run's :class:`~kalmansfm.io.summary.RunSummary` li
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -32,7 +33,7 @@ from ..report.figures import (
 from ..structure import CameraSet, Reconstruction, rms_std
 from ..tracking.tracks import Tracks
 
-__all__ = ["Stopwatch", "stage_reconstruction", "stage_summary", "stage_tracking"]
+__all__ = ["Stopwatch", "bar_of_passes", "stage_reconstruction", "stage_summary", "stage_tracking"]
 
 
 class Stopwatch:
@@ -68,6 +69,28 @@ class Stopwatch:
     def total(self) -> float:
         """Seconds since the clock was made."""
         return time.perf_counter() - self._start
+
+
+def bar_of_passes(bar: Any) -> Callable[[int, int], None]:
+    """A ``progress(done, total)`` callback for ``bar`` (a tqdm bar) that starts the bar again when ``done`` falls
+    back: a fusion that fits σ or a noise model passes over the points more than once.
+
+    Examples
+    --------
+    >>> import io
+    >>> from tqdm import tqdm
+    >>> with tqdm(total=10, file=io.StringIO()) as bar:
+    ...     advance = bar_of_passes(bar)
+    ...     advance(6, 10); advance(10, 10); advance(4, 10)
+    ...     bar.n
+    4
+    """
+    def advance(done: int, total: int) -> None:
+        if done < bar.n:
+            bar.reset(total)
+        bar.update(done - bar.n)
+
+    return advance
 
 
 def stage_tracking(

@@ -84,6 +84,17 @@ def test_a_known_sigma_fuses_each_block_alone(small_blocks):
     assert 1.9 < np.median(nees) < 2.9
 
 
+def test_progress_counts_every_point_once_in_each_pass(small_blocks):
+    """Reported after each chunk: within a pass the points done rise to all of them; a fit of σ passes again."""
+    scene, obs = _short_tracks(seed=6)
+    calls: list[tuple[int, int]] = []
+    fuse(_sparse(obs), scene.cameras, chunk_points=50, progress=lambda done, total: calls.append((done, total)))
+    passes = np.split(np.array(calls), np.flatnonzero(np.diff([d for d, _ in calls]) <= 0) + 1)
+    for one in passes:
+        assert (np.diff(one[:, 0]) > 0).all() and (one[:, 1] == one[0, 1]).all() and one[-1, 0] == one[0, 1]
+    assert sum(one[0, 1] == obs.shape[1] for one in passes) >= 2  # the pilot for σ, then the gated pass
+
+
 def test_small_observations_per_observation_are_fused_as_the_dense_array():
     scene, obs = _short_tracks(views=12, points=120)
     dense = fuse(obs, scene.cameras)

@@ -131,6 +131,7 @@ def fuse(
     track_scales: bool | None = None,
     settings: FusionSettings | None = None,
     executor: Any | None = None,
+    progress: Callable[[int, int], object] | None = None,
 ) -> Reconstruction:
     """Fuse each point's observations over many views with known cameras into a 3-D point and its covariance.
 
@@ -171,6 +172,9 @@ def fuse(
         Runs the chunks (a ``concurrent.futures.Executor``, or
         :class:`kalmansfm.pipeline.cluster.ScatteringExecutor` on Dask); by default
         they run one after the other here.
+    progress : called after each chunk with (points done in this pass, points of the pass), e.g. for a
+        progress bar; a fit of σ or of a noise model passes over the points (or some of them) more than
+        once, each pass from 0.
 
     Returns
     -------
@@ -223,11 +227,11 @@ def fuse(
                 raise InvalidInputError(f"pixel_std must be a number (pixels) or 'auto'; got {pixel_std!r}")
             del given["pixel_std"]
         settings = FusionSettings(**given)
-    return _fuse(observations, cameras, settings, executor)
+    return _fuse(observations, cameras, settings, executor, progress)
 
 
 def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSettings,
-          executor: Any | None) -> Reconstruction:
+          executor: Any | None, progress: Callable[[int, int], object] | None = None) -> Reconstruction:
     if isinstance(observations, Observations):
         cams = validate_sparse_inputs(observations, cameras)
         if fits_one_block(observations.shape):  # small enough to be fused as if given densely
@@ -273,7 +277,13 @@ def _fuse(observations: object, cameras: CameraSet | object, settings: FusionSet
                     yield Chunk(settings.method, g, data[:, s], sigma, gate2, gate1, keep_history,
                                 None if sc is None else sc[:, s], compiled)
         mapper = map if executor is None else executor.map
-        done = list(mapper(_run_chunk, jobs()))
+        done: list[ChunkResult] = []
+        points_done = 0
+        for result in mapper(_run_chunk, jobs()):
+            done.append(result)
+            if progress is not None and result.points.shape[0]:
+                points_done += result.points.shape[0]
+                progress(points_done, n_points if subsets is None else sum(int(x.size) for x in subsets))
         grouped: list[list[ChunkResult]] = [[] for _ in blocks]
         for k, result in zip(owners, done):
             grouped[k].append(result)

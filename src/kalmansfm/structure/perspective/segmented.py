@@ -322,7 +322,8 @@ def _chain_fit(previous: _Window, window: _Window) -> SimilarityFit:
 
 def reconstruct_segmented(observations: Observations, intrinsics: object, settings: PerspectiveSettings | None = None,
                           *, window_frames: int | None = None, overlap_frames: int | None = None,
-                          progress: Callable[[int, int], object] | None = None) -> Reconstruction:
+                          progress: Callable[[int, int], object] | None = None,
+                          fusion_progress: Callable[[int, int], object] | None = None) -> Reconstruction:
     """Camera poses and 3-D points of a long video-ordered sequence, reconstructed in overlapping windows.
 
     The module docstring describes the method.  Frames are taken in their index order (the
@@ -339,6 +340,7 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
     window_frames, overlap_frames : the windows (:func:`window_stop`; default :data:`WINDOW_FRAMES`
         and :data:`WINDOW_OVERLAP`).
     progress : called after each window with (frames reached, frames), e.g. for a progress bar.
+    fusion_progress : the final fusion's ``progress`` (:func:`~kalmansfm.structure.fusion.fuse`).
 
     Returns
     -------
@@ -430,7 +432,7 @@ def reconstruct_segmented(observations: Observations, intrinsics: object, settin
         raise NotEnoughDataError("fewer than 2 frames registered in the segmented reconstruction")
     began = time.perf_counter()
     translations = -np.einsum("fij,fj->fi", rotations, centres)
-    rec, every = _fuse_points(observations, K, rotations, translations, registered, settings)
+    rec, every = _fuse_points(observations, K, rotations, translations, registered, settings, fusion_progress)
     timings["fusion"] = time.perf_counter() - began
     warnings = [f"reconstructed in {len(windows)} windows of up to {min(window_frames, F)} frames overlapping by "
                 f"{overlap_frames}, chained by similarities (no loop closure: scale and orientation drift along the "
@@ -485,7 +487,8 @@ def _pick_cameras(n_frames: int, chained: list[_Window], windows: list[_Window]
 
 
 def _fuse_points(observations: Observations, intrinsics: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
-                 registered: np.ndarray, settings: PerspectiveSettings) -> tuple[Reconstruction, Observations]:
+                 registered: np.ndarray, settings: PerspectiveSettings,
+                 progress: Callable[[int, int], object] | None = None) -> tuple[Reconstruction, Observations]:
     """Every track fused from its observations in the registered frames; and all observations, over all frames."""
     F, P = observations.shape
     frames = np.flatnonzero(registered)
@@ -497,7 +500,7 @@ def _fuse_points(observations: Observations, intrinsics: np.ndarray, rotations: 
     cameras = CameraSet.from_pose(intrinsics[frames], rotations[frames], translations[frames], frames=frames)
     fusion = FusionSettings(method="batch", outlier_probability=settings.outlier_probability, noise_model="gaussian")
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # points at a camera's plane
-        fused = fuse(per_view, cameras, settings=fusion)
+        fused = fuse(per_view, cameras, settings=fusion, progress=progress)
     o = fused.observations
     outside = np.flatnonzero(~inside)
     every = Observations.from_sparse(
