@@ -18,6 +18,7 @@ from ..structure import PointStatus, Reconstruction, align_similarity, factorize
 from ..structure.affine.factorization import DEFAULT_MAX_ITERATIONS
 from ..structure.geometry.orthographic import camera_rotation_matrices, rotation_angle_deg
 from ..tracking.tracks import LOST, PREDICTED, Tracks
+from .stage import bar_progress
 
 __all__ = ["compare_with_truth", "factorize_tracks", "reconstruction_metrics", "tracking_metrics"]
 
@@ -83,11 +84,8 @@ def factorize_tracks(tracks: Tracks, *, weighted: bool = True, max_iterations: i
     """
     weights = tracks.observation_weights() if weighted else None
     with tqdm(total=max_iterations, desc="factorization", unit="it", disable=not progress, leave=False) as bar:
-        def advance(done: int, _: int) -> None:
-            bar.update(done - bar.n)
-
         rec = factorize(tracks.observations(), weights=weights, max_iterations=max_iterations,
-                        progress=advance if progress else None)
+                        progress=bar_progress(bar) if progress else None)
     return rec.with_ids(tracks.frames, tracks.track_ids)
 
 

@@ -20,7 +20,7 @@ from .cluster import ScatteringExecutor, check_cluster, dask_client
 from .evaluate import reconstruction_metrics
 from .reconstruct import tracks_file
 from .requests import FuseRequest, request_options
-from .stage import Stopwatch, bar_of_passes, stage_reconstruction, stage_summary
+from .stage import Stopwatch, bar_progress, stage_reconstruction, stage_summary
 
 __all__ = ["FuseRun", "run_fuse"]
 
@@ -88,7 +88,7 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     observations = data.observations  # per observation: fuse holds them densely only where that is small
     with clock.step("fusion"), tqdm(total=points, desc="fusion", unit="point", disable=not request.progress,
                                     leave=False) as bar:
-        advance = bar_of_passes(bar)
+        advance = bar_progress(bar)
         if request.scheduler is None and request.workers is None:
             rec = fuse(observations, data.cameras, settings=settings, progress=advance)
         else:

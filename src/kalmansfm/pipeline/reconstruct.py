@@ -36,7 +36,7 @@ from ..tracking import Tracks, smooth_tracks
 from .evaluate import factorize_tracks, reconstruction_metrics
 from .perspective import resolve_intrinsics
 from .requests import Affine, Auto, Perspective, ReconstructRequest, request_options
-from .stage import Stopwatch, bar_of_passes, stage_reconstruction, stage_summary
+from .stage import Stopwatch, bar_progress, stage_reconstruction, stage_summary
 
 __all__ = ["ReconstructRun", "read_tracks_for_factorization", "run_reconstruct", "tracks_file"]
 
@@ -187,11 +187,7 @@ def run_reconstruct(request: ReconstructRequest) -> ReconstructRun:
         with clock.step("factorization"):
             if isinstance(tracks, TrackObservations):
                 with tqdm(desc="factorization", unit="step", disable=not request.progress, leave=False) as bar:
-                    def advance(done: int, most: int) -> None:
-                        bar.total = most
-                        bar.update(done - bar.n)
-
-                    factorized = factorize_long_sequence(tracks.observations(), progress=advance)
+                    factorized = factorize_long_sequence(tracks.observations(), progress=bar_progress(bar))
                 factorized = factorized.with_ids(tracks.frames, tracks.track_ids)
             else:
                 factorized = factorize_tracks(tracks, weighted=affine.weighted and tracks.covariances is not None,
@@ -245,6 +241,5 @@ def _calibrated(tracks: Tracks | TrackObservations, K: np.ndarray, camera: Persp
               leave=False) as bar, tqdm(total=tracks.track_ids.size, desc="fusion", unit="point",
                                          disable=not progress, leave=False) as fusion_bar:
         rec = reconstruct_segmented(tracks.observations(), K, camera.settings,
-                                    progress=lambda done, _: bar.update(done - bar.n),
-                                    fusion_progress=bar_of_passes(fusion_bar))
+                                    progress=bar_progress(bar), fusion_progress=bar_progress(fusion_bar))
     return rec.with_ids(tracks.frames, tracks.track_ids)

@@ -33,7 +33,7 @@ from ..report.figures import (
 from ..structure import CameraSet, Reconstruction, rms_std
 from ..tracking.tracks import Tracks
 
-__all__ = ["Stopwatch", "bar_of_passes", "stage_reconstruction", "stage_summary", "stage_tracking"]
+__all__ = ["Stopwatch", "bar_progress", "stage_reconstruction", "stage_summary", "stage_tracking"]
 
 
 class Stopwatch:
@@ -71,23 +71,24 @@ class Stopwatch:
         return time.perf_counter() - self._start
 
 
-def bar_of_passes(bar: Any) -> Callable[[int, int], None]:
-    """A ``progress(done, total)`` callback for ``bar`` (a tqdm bar) that starts the bar again when ``done`` falls
-    back: a fusion that fits σ or a noise model passes over the points more than once.
+def bar_progress(bar: Any) -> Callable[[int, int], None]:
+    """A ``progress(done, total)`` callback that moves ``bar`` (a tqdm bar) to ``done`` of ``total``, starting it
+    again when ``done`` falls back (a fusion that fits σ or a noise model passes over the points more than once).
 
     Examples
     --------
     >>> import io
     >>> from tqdm import tqdm
-    >>> with tqdm(total=10, file=io.StringIO()) as bar:
-    ...     advance = bar_of_passes(bar)
+    >>> with tqdm(file=io.StringIO()) as bar:
+    ...     advance = bar_progress(bar)
     ...     advance(6, 10); advance(10, 10); advance(4, 10)
-    ...     bar.n
-    4
+    ...     bar.n, bar.total
+    (4, 10)
     """
     def advance(done: int, total: int) -> None:
         if done < bar.n:
             bar.reset(total)
+        bar.total = total
         bar.update(done - bar.n)
 
     return advance
