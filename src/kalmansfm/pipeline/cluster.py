@@ -1,4 +1,4 @@
-"""The Dask set-up shared by the commands that spread work over processes (``batch``, ``fuse``)."""
+"""The Dask set-up shared by the commands that spread work over processes (``batch``, ``fuse``, ``reconstruct IMAGES``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any
 
 from ..errors import InvalidInputError
 
-__all__ = ["ScatteringExecutor", "check_cluster", "dask_client"]
+__all__ = ["ScatteringExecutor", "check_cluster", "dask_client", "executor_for"]
 
 
 def check_cluster(
@@ -81,6 +81,24 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None,
     check_cluster(scheduler, n_workers)
     with _dask_quiet():
         yield from _client(scheduler, n_workers, connect_timeout_s)
+
+
+@contextmanager
+def executor_for(scheduler: str | None, n_workers: int | None) -> Iterator[ScatteringExecutor | None]:
+    """A :class:`ScatteringExecutor` on :func:`dask_client` when ``scheduler`` or ``n_workers`` is given; else None
+    (the work then runs in this process, as the estimators do by default).
+
+    Examples
+    --------
+    >>> with executor_for(None, None) as executor:
+    ...     executor is None
+    True
+    """
+    if scheduler is None and n_workers is None:
+        yield None
+        return
+    with dask_client(scheduler, n_workers) as client:
+        yield ScatteringExecutor(client)
 
 
 #: Dask's loggers, kept to errors while kalmansfm uses a cluster: its INFO lines tell every worker start and

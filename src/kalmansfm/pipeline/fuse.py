@@ -16,7 +16,7 @@ from ..io.summary import RunSummary, run_source
 from ..io.tracks import read_track_observations
 from ..structure import Reconstruction
 from ..structure.fusion import fuse
-from .cluster import ScatteringExecutor, check_cluster, dask_client
+from .cluster import check_cluster, executor_for
 from .evaluate import reconstruction_metrics
 from .reconstruct import tracks_file
 from .requests import FuseRequest, request_options
@@ -88,13 +88,8 @@ def run_fuse(request: FuseRequest) -> FuseRun:
     observations = data.observations  # per observation: fuse holds them densely only where that is small
     with clock.step("fusion"), tqdm(total=points, desc="fusion", unit="point", disable=not request.progress,
                                     leave=False) as bar:
-        advance = bar_progress(bar)
-        if request.scheduler is None and request.workers is None:
-            rec = fuse(observations, data.cameras, settings=settings, progress=advance)
-        else:
-            with dask_client(request.scheduler, request.workers) as client:
-                rec = fuse(observations, data.cameras, settings=settings, executor=ScatteringExecutor(client),
-                           progress=advance)
+        with executor_for(request.scheduler, request.workers) as executor:
+            rec = fuse(observations, data.cameras, settings=settings, executor=executor, progress=bar_progress(bar))
     rec = rec.with_ids(track_ids=data.track_ids)
     metrics = reconstruction_metrics(rec, skipped_frames=tuple(int(f) for f in data.frames_without_camera))
     summary = RunSummary(command="fuse", input=f"{request.tracks} with cameras {request.cameras}", source=source,

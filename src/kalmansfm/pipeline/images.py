@@ -24,7 +24,7 @@ from ..io.frames import IMAGE_EXTENSIONS, VIDEO_SUFFIXES, read_frames
 from ..io.summary import RunSummary, run_source
 from ..io.tracks import observations_csv
 from ..mapping import ImageReconstruction, MappingSettings, ViewStatus, reconstruct_images
-from .cluster import ScatteringExecutor, check_cluster, dask_client
+from .cluster import check_cluster, executor_for
 from .evaluate import reconstruction_metrics
 from .perspective import resolve_intrinsics
 from .requests import Perspective, request_options
@@ -115,11 +115,8 @@ def run_reconstruct_images(request: ImagesRequest) -> ImagesRun:
     made_from = run_source(sequence.description, [*sequence.paths, *[p for p in inputs[1:] if p is not None]],
                            request_options(request))
     with clock.step("reconstruction from the images"):
-        if request.scheduler is None and request.workers is None:
-            result = reconstruct_images(frames, K, request.settings)
-        else:
-            with dask_client(request.scheduler, request.workers) as client:
-                result = reconstruct_images(frames, K, request.settings, executor=ScatteringExecutor(client))
+        with executor_for(request.scheduler, request.workers) as executor:
+            result = reconstruct_images(frames, K, request.settings, executor=executor)
     rec = result.reconstruction.with_ids(frame_numbers, np.arange(result.reconstruction.n_points))
     metrics = reconstruction_metrics(rec, intrinsics=source_k)
     lines = result.unregistered_lines()
