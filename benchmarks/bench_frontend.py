@@ -5,6 +5,7 @@ Usage::
     python benchmarks/bench_frontend.py                 # templeRing (47), its arc 13-31, dinoRing (48)
     python benchmarks/bench_frontend.py --quick         # templeRing 13-22 and dinoRing 1-12
     python benchmarks/bench_frontend.py --sets dino --no-colmap --profile
+    python benchmarks/bench_frontend.py --no-colmap --sift-upsampling 2 --sift-sigma 1.6   # OpenCV's own SIFT
 
 Data: ``../shared/data/middlebury_templering`` and ``middlebury_dinoring`` (their READMEs), images in
 file order, the dataset's K for every view; the dataset's R, t are only the reference (dinoRing's R
@@ -37,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kalmansfm.features import FeatureSettings
 from kalmansfm.io.frames import FrameSource, list_image_files
 from kalmansfm.io.middlebury import read_middlebury_cameras
 from kalmansfm.mapping import MappingSettings, reconstruct_images
@@ -117,7 +119,8 @@ def within_3px(data: Dataset, observations: np.ndarray, mask: np.ndarray | None 
 
 def run_ours(data: Dataset, settings: MappingSettings, executor=None) -> dict:
     start, cpu = time.perf_counter(), time.process_time()
-    images = list(FrameSource(description=data.name, files=tuple(data.files), count=len(data.files)))
+    # the files are decoded as the features of the first are detected (as ``kalmansfm reconstruct IMAGES`` does)
+    images = FrameSource(description=data.name, files=tuple(data.files), count=len(data.files))
     result = reconstruct_images(images, data.K, settings, executor=executor)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     rec = result.reconstruction
@@ -195,6 +198,11 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA, help="the folder holding the data sets")
     parser.add_argument("--repeat", type=int, default=2,
                         help="interleaved rounds (ours, pycolmap, ours, ...); the best time of each is reported")
+    defaults = FeatureSettings()
+    parser.add_argument("--sift-upsampling", type=float, default=defaults.sift_upsampling,
+                        help="ours: FeatureSettings.sift_upsampling (2 = OpenCV's own SIFT)")
+    parser.add_argument("--sift-sigma", type=float, default=defaults.sift_sigma,
+                        help="ours: FeatureSettings.sift_sigma (1.6 = OpenCV's default)")
     parser.add_argument("--workers", type=int, default=None,
                         help="ours: match the image pairs on a local Dask cluster of this many processes (started once, "
                         "before the timed runs; its CPU time is not in ours)")
@@ -210,8 +218,10 @@ def main() -> None:
 
 
 def compare(names: list[str], args: argparse.Namespace, executor) -> None:
-    settings = MappingSettings()
-    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}, {os.cpu_count()} cores")
+    settings = MappingSettings(features=FeatureSettings(sift_upsampling=args.sift_upsampling,
+                                                        sift_sigma=args.sift_sigma))
+    print(f"SIFT upsampling {args.sift_upsampling}, sigma {args.sift_sigma}; load average {os.getloadavg()[0]:.2f} "
+          f"{os.getloadavg()[1]:.2f}, {os.cpu_count()} cores")
     rows = []
     for name in names:
         data = load(name, args.data)

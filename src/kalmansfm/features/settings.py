@@ -29,6 +29,14 @@ class FeatureSettings:
     contrast_threshold : SIFT's contrast threshold.  OpenCV's default 0.04 finds 148 features per dinoRing
         view (median), 0.02 219, 0.01 376, 0.005 800; dinoRing's cameras came out 0.95 % of the ring radius off
         with 0.02 and 0.23 % with 0.005 (docs/front-end.md).
+    sift_upsampling : how much SIFT's first octave enlarges the image.  OpenCV always doubles it; the image is
+        resized by ``sift_upsampling / 2`` first (2 = OpenCV's own detection, 1 = no enlargement).  Most of a
+        weakly textured image's features come from that first octave (616 of 798 on a dinoRing view), and
+        its cost is the area: 1.4 builds a pyramid of half the pixels of OpenCV's.
+    sift_sigma : SIFT's base blur, in pixels of the first octave.  With the upsampling it sets the finest
+        scale in pixels of the image: 1.2 / 1.4 = 0.86, next to OpenCV's 1.6 / 2 = 0.8.  Together the two
+        defaults detect 1.2 s → 0.5 s on dinoRing, and the cameras stay within the targets of all three
+        Middlebury sets (docs/front-end.md).
     ratio : Lowe's ratio test: a nearest neighbour is kept when its distance is below ``ratio`` times the
         second nearest's; matches must also be mutual nearest neighbours.
     exhaustive_max_images : up to this many images every pair is matched; beyond it the pairs are a
@@ -50,6 +58,8 @@ class FeatureSettings:
     root_sift: bool = True
     max_features: int = 1600
     contrast_threshold: float = 0.005
+    sift_upsampling: float = 1.4
+    sift_sigma: float = 1.2
     ratio: float = 0.8
     exhaustive_max_images: int = 12
     pair_window: int = 2
@@ -71,7 +81,13 @@ class FeatureSettings:
         for name, low in (("exhaustive_max_images", 2), ("retrieval_features", 8), ("min_retrieval_matches", 1),
                           ("min_inliers", 5)):
             object.__setattr__(self, name, check_count(name, getattr(self, name), low))
-        object.__setattr__(self, "contrast_threshold", check_positive("contrast_threshold", self.contrast_threshold))
+        for name in ("contrast_threshold", "sift_sigma"):
+            object.__setattr__(self, name, check_positive(name, getattr(self, name)))
+        upsampling = check_positive("sift_upsampling", self.sift_upsampling)
+        if not 0.25 <= upsampling <= 2.0:
+            raise InvalidInputError(f"sift_upsampling must be in [0.25, 2] (OpenCV's SIFT enlarges by 2 at most); "
+                                    f"got {upsampling}")
+        object.__setattr__(self, "sift_upsampling", upsampling)
         object.__setattr__(self, "verification_threshold_px",
                            check_positive("verification_threshold_px", self.verification_threshold_px, "pixels"))
         for name in ("ratio", "confidence"):

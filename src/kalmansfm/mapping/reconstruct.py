@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -99,19 +99,19 @@ class ImageReconstruction:
 
 # -- input ------------------------------------------------------------------------------------------
 
-def _grey_images(images: object) -> list[np.ndarray]:
+def _grey_images(images: object, shape: list[tuple[int, ...]]) -> Iterator[np.ndarray]:
+    """The images as grey, one by one as they are read (a lazy source such as a FrameSource is decoded while
+    the features of the earlier images are detected); checked for type, one size (appended to ``shape``) and
+    repeats."""
     if isinstance(images, np.ndarray):
         if images.ndim not in (3, 4):
             raise InvalidInputError(f"images must be a sequence of images or an (F, H, W[, C]) array; got shape "
                                     f"{images.shape}")
         images = list(images)
     try:
-        items = list(images)  # type: ignore[call-overload]
+        items = iter(images)  # type: ignore[call-overload]
     except TypeError:
         raise InvalidInputError(f"images must be a sequence of arrays; got {type(images).__name__}") from None
-    if len(items) < 2:
-        raise NotEnoughDataError(f"reconstruct_images needs >= 2 images; got {len(items)}")
-    grey: list[np.ndarray] = []
     seen: dict[bytes, int] = {}
     for k, item in enumerate(items):
         a = np.asarray(item)
@@ -119,15 +119,20 @@ def _grey_images(images: object) -> list[np.ndarray]:
             raise InvalidInputError(f"image {k} must be (H, W) grey, (H, W, 3) BGR or (H, W, 4) BGRA uint8; got shape "
                                     f"{a.shape}, dtype {a.dtype}")
         g = np.ascontiguousarray(colour_to_grey(a))
-        if grey and g.shape != grey[0].shape:
+        if shape and g.shape != shape[0]:
             raise InvalidInputError(f"image {k} is {g.shape[1]} x {g.shape[0]} pixels but image 0 is "
-                                    f"{grey[0].shape[1]} x {grey[0].shape[0]}; all images must have one size")
+                                    f"{shape[0][1]} x {shape[0][0]}; all images must have one size")
+        shape[:1] = [g.shape]
         digest = hashlib.blake2b(g.tobytes(), digest_size=16).digest()
         if digest in seen:
             raise InvalidInputError(f"image {k} repeats image {seen[digest]} (identical pixels); give each view once")
         seen[digest] = k
-        grey.append(g)
-    return grey
+        yield g
+
+
+def _enough_images(count: int) -> None:
+    if count < 2:
+        raise NotEnoughDataError(f"reconstruct_images needs >= 2 images; got {count}")
 
 
 def _intrinsics(intrinsics: object, count: int) -> np.ndarray:
@@ -225,7 +230,7 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
     Examples
     --------
     >>> from kalmansfm.scenes.textured import textured_views
-    >>> views = textured_views(frames=5, seed=0)
+    >>> views = textured_views(frames=5, arc_deg=80.0, seed=0)    # 20° between views
     >>> result = reconstruct_images(views.images, views.intrinsics)
     >>> int(result.registered.sum()), result.reconstruction.reprojection_rms < 1.0
     (5, True)
@@ -242,14 +247,22 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
         timings[name] = timings.get(name, 0.0) + now - clock
         clock = now
 
-    grey = _grey_images(images)
-    F = len(grey)
-    K = _intrinsics(intrinsics, F)
-    image_size = (grey[0].shape[1], grey[0].shape[0])
     fs, rs = settings.features, settings.reconstruction
+    try:
+        known: int | None = len(images)  # type: ignore[arg-type]
+    except TypeError:  # a generator, or a video of unknown length
+        known = None
+    if known is not None:  # checked before any image is read
+        _enough_images(known)
+        _intrinsics(intrinsics, known)
     lap("input")
-    features = detect_all(grey, fs)
+    shape: list[tuple[int, ...]] = []
+    features = detect_all(_grey_images(images, shape), fs)  # images are read as the first are detected
     lap("detection")
+    F = len(features)
+    _enough_images(F)
+    K = _intrinsics(intrinsics, F)
+    image_size = (shape[0][1], shape[0][0])
     selection = select_pairs(features, fs)
     lap("pair_selection")
     graph = match_images(features, K, fs, selection, executor=executor)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,13 +106,19 @@ def run_reconstruct_images(request: ImagesRequest) -> ImagesRun:
     clock = Stopwatch()
     with clock.step("frames"):
         sequence = read_frames(request.images)
-        frames = list(sequence)
-    if len(frames) < 2:
-        raise InvalidInputError(f"{request.images}: a reconstruction needs at least 2 images; got {len(frames)}")
-    height, width = frames[0].shape[:2]
-    frame_numbers = np.arange(len(frames))
+        reader = iter(sequence)
+        first = next(reader, None)
+        if sequence.files:  # the rest is decoded while the first images' features are detected
+            count, frames = len(sequence.files), itertools.chain([first], reader)
+        else:  # a video's length is known once it is read
+            listed = [] if first is None else [first, *reader]
+            count, frames = len(listed), iter(listed)
+    if count < 2:
+        raise InvalidInputError(f"{request.images}: a reconstruction needs at least 2 images; got {count}")
+    height, width = first.shape[:2]
+    frame_numbers = np.arange(count)
     K, source_k = resolve_intrinsics(frame_numbers, request.camera, (width, height))
-    names = [Path(p).name for p in sequence.paths] if len(sequence.paths) == len(frames) else None
+    names = [Path(p).name for p in sequence.paths] if len(sequence.paths) == count else None
     made_from = run_source(sequence.description, [*sequence.paths, *[p for p in inputs[1:] if p is not None]],
                            request_options(request))
     with clock.step("reconstruction from the images"):

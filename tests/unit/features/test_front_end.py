@@ -46,6 +46,76 @@ def test_binary_detectors_give_bits(detector, width):
     assert set(np.unique(f.descriptors).tolist()) <= {0.0, 1.0}
 
 
+def _pixel_exact_sift(image, sigma):
+    """OpenCV's SIFT with the first octave enlarged pixel-exactly (positions without the quarter-pixel shift)."""
+    sift = cv2.SIFT_create(nfeatures=1600, contrastThreshold=0.005, sigma=sigma, enable_precise_upscale=True)
+    keypoints, raw = sift.detectAndCompute(image, None)
+    return np.array([k.pt for k in keypoints]), np.sqrt(raw / raw.sum(axis=1, keepdims=True))
+
+
+@pytest.mark.parametrize("upsampling", [2.0, 1.4, 1.0])
+def test_sift_features_are_placed_in_the_images_pixels(upsampling):
+    """Found on the image resized by upsampling / 2 and mapped back, a feature lies where OpenCV's pixel-exact
+    detection on the image itself puts it: no offset (OpenCV's default enlargement would add 0.25 px, and a
+    half-pixel slip in the mapping back 0.1-0.25 px)."""
+    image = textured_views(frames=2, seed=1).images[0]
+    reference, descriptors = _pixel_exact_sift(image, sigma=1.2)
+    f = detect_features(image, FeatureSettings(sift_upsampling=upsampling))
+    pairs = match_descriptors(f.descriptors, descriptors).pairs
+    offset = f.keypoints[pairs[:, 0]] - reference[pairs[:, 1]]
+    same = np.linalg.norm(offset, axis=1) < 1.0
+    assert same.sum() > 200
+    assert np.all(np.abs(offset[same].mean(axis=0)) < 0.05)
+    # the shift the correction removes is there in OpenCV's own detection
+    raw, _ = cv2.SIFT_create(nfeatures=1600, contrastThreshold=0.005, sigma=1.2).detectAndCompute(image, None)
+    by_opencv = np.array([k.pt for k in raw])
+    shift = by_opencv[:, None] - reference[None]
+    nearest = shift[np.arange(len(by_opencv)), np.argmin(np.linalg.norm(shift, axis=2), axis=1)]
+    nearest = nearest[np.linalg.norm(nearest, axis=1) < 0.5]
+    np.testing.assert_allclose(np.median(nearest, axis=0), [0.25, 0.25], atol=0.02)
+
+
+def test_a_smaller_sift_upsampling_finds_fewer_features_faster():
+    image = textured_views(frames=2, seed=1).images[0]
+    counts = [len(detect_features(image, FeatureSettings(sift_upsampling=u))) for u in (2.0, 1.4, 1.0)]
+    assert counts[0] > counts[1] > counts[2] > 100
+    enlarged = detect_features(image, FeatureSettings(sift_upsampling=2.0, sift_sigma=1.6))
+    keypoints, _ = cv2.SIFT_create(nfeatures=1600, contrastThreshold=0.005).detectAndCompute(image, None)
+    assert len(enlarged) == len(keypoints)  # 2 and sigma 1.6: OpenCV's own detection
+
+
+def test_detection_reads_a_lazy_source_as_it_detects():
+    """A generator's next image is asked for only after the first was handed to the threads: reading overlaps
+    detection (the generator waits for the first detection before it gives the third image)."""
+    import threading
+    from unittest import mock
+
+    from kalmansfm.features import detection
+
+    images = textured_views(frames=3, seed=2).images
+    first_detected = threading.Event()
+    waited = []
+    real = detection.detect_features
+
+    def detect(image, settings=None):
+        found = real(image, settings)
+        first_detected.set()
+        return found
+
+    def source():
+        yield images[0]
+        yield images[1]
+        waited.append(first_detected.wait(timeout=10))
+        yield images[2]
+
+    with mock.patch.object(detection, "detect_features", detect):
+        lazy = detect_all(source())
+    assert waited == [True] and len(lazy) == 3
+    eager = detect_all(list(images))
+    assert [len(f) for f in lazy] == [len(f) for f in eager]
+    np.testing.assert_array_equal(lazy[2].keypoints, eager[2].keypoints)
+
+
 def test_detection_refuses_what_is_not_a_grey_byte_image():
     with pytest.raises(InvalidInputError, match="2-D uint8 grey image"):
         detect_features(np.zeros((40, 40, 3), np.uint8))
@@ -105,6 +175,10 @@ def test_settings_are_validated():
         FeatureSettings(ratio=1.2)
     with pytest.raises(InvalidInputError, match="min_inliers"):
         FeatureSettings(min_inliers=3)
+    with pytest.raises(InvalidInputError, match=r"sift_upsampling must be in \[0.25, 2\].*got 3.0"):
+        FeatureSettings(sift_upsampling=3.0)
+    with pytest.raises(InvalidInputError, match="sift_sigma"):
+        FeatureSettings(sift_sigma=0.0)
 
 
 @pytest.mark.parametrize("short", [None, 2])

@@ -94,6 +94,21 @@ def test_image_order_is_free():
     assert np.linalg.norm(moved - a.reconstruction.centres[order], axis=1).max() < 0.01 * spread
 
 
+def test_images_from_a_generator_give_the_same_cameras_and_the_same_refusals():
+    views = textured_views(frames=6, arc_deg=100.0, seed=6)
+    listed = reconstruct_images(views.images, views.intrinsics)
+    streamed = reconstruct_images((image for image in views.images), views.intrinsics)
+    np.testing.assert_array_equal(streamed.reconstruction.centres, listed.reconstruction.centres)
+    assert streamed.image_size == listed.image_size == (320, 240)
+    K = views.intrinsics
+    with pytest.raises(NotEnoughDataError, match="needs >= 2 images; got 1"):
+        reconstruct_images(iter(views.images[:1]), K)
+    with pytest.raises(InvalidInputError, match="image 2 repeats image 0"):
+        reconstruct_images(iter([views.images[0], views.images[1], views.images[0].copy()]), K)
+    with pytest.raises(InvalidInputError, match="intrinsics hold 2 K matrices for 3 images"):
+        reconstruct_images(iter(views.images[:3]), np.stack([K, K]))
+
+
 def test_views_without_a_camera_are_listed_with_the_reason():
     views = textured_views(frames=6, arc_deg=100.0, seed=7)
     stranger = textured_views(frames=2, seed=99).images[0]  # another object: nothing in common
