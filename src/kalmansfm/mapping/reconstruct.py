@@ -99,35 +99,42 @@ class ImageReconstruction:
 
 # -- input ------------------------------------------------------------------------------------------
 
-def _grey_images(images: object, shape: list[tuple[int, ...]]) -> Iterator[np.ndarray]:
+class _GreyImages:
     """The images as grey, one by one as they are read (a lazy source such as a FrameSource is decoded while
-    the features of the earlier images are detected); checked for type, one size (appended to ``shape``) and
-    repeats."""
-    if isinstance(images, np.ndarray):
-        if images.ndim not in (3, 4):
-            raise InvalidInputError(f"images must be a sequence of images or an (F, H, W[, C]) array; got shape "
-                                    f"{images.shape}")
-        images = list(images)
-    try:
-        items = iter(images)  # type: ignore[call-overload]
-    except TypeError:
-        raise InvalidInputError(f"images must be a sequence of arrays; got {type(images).__name__}") from None
-    seen: dict[bytes, int] = {}
-    for k, item in enumerate(items):
-        a = np.asarray(item)
-        if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))):
-            raise InvalidInputError(f"image {k} must be (H, W) grey, (H, W, 3) BGR or (H, W, 4) BGRA uint8; got shape "
-                                    f"{a.shape}, dtype {a.dtype}")
-        g = np.ascontiguousarray(colour_to_grey(a))
-        if shape and g.shape != shape[0]:
-            raise InvalidInputError(f"image {k} is {g.shape[1]} x {g.shape[0]} pixels but image 0 is "
-                                    f"{shape[0][1]} x {shape[0][0]}; all images must have one size")
-        shape[:1] = [g.shape]
-        digest = hashlib.blake2b(g.tobytes(), digest_size=16).digest()
-        if digest in seen:
-            raise InvalidInputError(f"image {k} repeats image {seen[digest]} (identical pixels); give each view once")
-        seen[digest] = k
-        yield g
+    the features of the earlier ones are detected), each checked for its type, the size of the first
+    (``shape``, known once one image is read) and repeats."""
+
+    def __init__(self, images: object) -> None:
+        if isinstance(images, np.ndarray):
+            if images.ndim not in (3, 4):
+                raise InvalidInputError(f"images must be a sequence of images or an (F, H, W[, C]) array; got shape "
+                                        f"{images.shape}")
+            images = list(images)
+        try:
+            self._items = iter(images)  # type: ignore[call-overload]
+        except TypeError:
+            raise InvalidInputError(f"images must be a sequence of arrays; got {type(images).__name__}") from None
+        self.shape: tuple[int, ...] | None = None
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        seen: dict[bytes, int] = {}
+        for k, item in enumerate(self._items):
+            a = np.asarray(item)
+            if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))):
+                raise InvalidInputError(f"image {k} must be (H, W) grey, (H, W, 3) BGR or (H, W, 4) BGRA uint8; got "
+                                        f"shape {a.shape}, dtype {a.dtype}")
+            g = np.ascontiguousarray(colour_to_grey(a))
+            if self.shape is None:
+                self.shape = g.shape
+            elif g.shape != self.shape:
+                raise InvalidInputError(f"image {k} is {g.shape[1]} x {g.shape[0]} pixels but image 0 is "
+                                        f"{self.shape[1]} x {self.shape[0]}; all images must have one size")
+            digest = hashlib.blake2b(g.tobytes(), digest_size=16).digest()
+            if digest in seen:
+                raise InvalidInputError(f"image {k} repeats image {seen[digest]} (identical pixels); give each view "
+                                        "once")
+            seen[digest] = k
+            yield g
 
 
 def _enough_images(count: int) -> None:
@@ -256,13 +263,13 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
         _enough_images(known)
         _intrinsics(intrinsics, known)
     lap("input")
-    shape: list[tuple[int, ...]] = []
-    features = detect_all(_grey_images(images, shape), fs)  # images are read as the first are detected
+    grey = _GreyImages(images)
+    features = detect_all(grey, fs)  # the images are read as the first ones are detected
     lap("detection")
     F = len(features)
     _enough_images(F)
     K = _intrinsics(intrinsics, F)
-    image_size = (shape[0][1], shape[0][0])
+    image_size = (grey.shape[1], grey.shape[0])  # type: ignore[index]
     selection = select_pairs(features, fs)
     lap("pair_selection")
     graph = match_images(features, K, fs, selection, executor=executor)
