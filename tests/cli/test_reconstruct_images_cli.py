@@ -103,3 +103,22 @@ def test_workers_are_for_images_not_tracks(tmp_path, capsys):
     tracks.write_text("frame,track_id,x,y\n0,0,1,1\n1,0,2,2\n")
     assert main(["reconstruct", str(tracks), "--out", str(tmp_path / "run"), "--workers", "2"]) == 2
     assert "--workers and --scheduler spread the matching of image pairs" in capsys.readouterr().err
+
+
+def test_the_front_end_options_reach_the_detection_and_are_checked(folder, tmp_path, capsys):
+    base, _ = folder
+    common = ["reconstruct", str(base / "images"), "--camera", "perspective", "--intrinsics", str(base / "K.csv")]
+    assert main([*common, "--max-features", "300", "--sift-upsampling", "2", "--out", str(tmp_path / "a"), "-q"]) == 0
+    assert "median 300 features per image" in capsys.readouterr().out
+    options = read_summary(tmp_path / "a" / "summary.json").source.options
+    recorded = dict(options)["settings"]  # the run's source records the settings as JSON
+    assert '"sift_upsampling":2.0' in recorded and '"max_features":300' in recorded
+    assert main([*common, "--sift-upsampling", "3", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--sift-upsampling must be in [0.25, 2]" in err[0] and not (tmp_path / "b").exists()
+    tracks = tmp_path / "tracks.csv"
+    tracks.write_text("frame,track_id,x,y\n0,0,1,2\n1,0,2,3\n")
+    assert main(["reconstruct", str(tracks), "--camera", "perspective", "--focal", "500", "--image-size", "64", "48",
+                 "--max-features", "300", "--detector", "orb", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--detector, --max-features: the feature front end's options apply to images" in err[0]

@@ -10,6 +10,7 @@ from pathlib import Path
 
 
 from ..errors import InvalidInputError
+from ..features import DETECTORS, FeatureSettings
 from ..mapping import MappingSettings
 from ..mapping.settings import FEATURE_OUTLIER_THRESHOLD_PX
 from ..pipeline import Affine, Auto, Perspective, ReconstructRequest, run_reconstruct
@@ -76,8 +77,29 @@ def add_parser(subparsers: argparse._SubParsersAction, parents: list[argparse.Ar
                    "threads in this process)")
     p.add_argument("--scheduler", default=None,
                    help="images: match the image pairs on an existing Dask scheduler, e.g. tcp://host:8786")
+    features = FeatureSettings()
+    p.add_argument("--detector", choices=DETECTORS, default=None,
+                   help=f"images: the feature detector and descriptor (default: {features.detector}; RootSIFT)")
+    p.add_argument("--max-features", metavar="N", type=int, default=None,
+                   help=f"images: keep each image's N strongest features (default: {features.max_features}; 0 = all)")
+    p.add_argument("--sift-upsampling", metavar="U", type=float, default=None,
+                   help=f"images: how much SIFT's first octave enlarges the image (default: {features.sift_upsampling:g}; "
+                   "2 = OpenCV's own detection, more accurate and slower; see docs/front-end.md)")
     p.add_argument("--no-plot", action="store_true", help="do not draw structure.png")
     p.set_defaults(run=run)
+
+
+#: the front end's options, by the FeatureSettings field each sets.
+_FEATURE_OPTIONS = {"detector": "--detector", "max_features": "--max-features", "sift_upsampling": "--sift-upsampling"}
+
+
+def _feature_settings(args: argparse.Namespace, images_in: bool) -> FeatureSettings:
+    given = {field: getattr(args, field) for field in _FEATURE_OPTIONS if getattr(args, field) is not None}
+    if given and not images_in:
+        names = ", ".join(_FEATURE_OPTIONS[field] for field in given)
+        raise InvalidInputError(f"{names}: the feature front end's options apply to images; {args.tracks} holds tracks")
+    with as_typed(_FEATURE_OPTIONS):
+        return FeatureSettings(**given)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -98,12 +120,14 @@ def run(args: argparse.Namespace) -> int:
             perspective = Perspective(intrinsics=args.intrinsics, focal=args.focal, settings=settings,
                                       image_size=None if args.image_size is None else tuple(args.image_size))
             camera = perspective if args.camera == "perspective" else Auto(perspective, affine)
+        features = _feature_settings(args, is_image_input(args.tracks))
         if is_image_input(args.tracks):
             if args.camera != "perspective":
                 raise InvalidInputError(f"{args.tracks} holds images: reconstruct them with --camera perspective and "
                                         "--intrinsics or --focal (or track them first)")
             images = run_reconstruct_images(ImagesRequest(args.tracks, args.out, camera, plot=not args.no_plot,
-                                                          settings=MappingSettings(reconstruction=settings),
+                                                          settings=MappingSettings(features=features,
+                                                                                   reconstruction=settings),
                                                           scheduler=args.scheduler, workers=args.workers))
             _print_images(images)
             return 0
