@@ -11,7 +11,8 @@ from kalmansfm.scenes.known_cameras import known_camera_scene
 from kalmansfm.structure import PointStatus, factorize, triangulate_midpoint
 from kalmansfm.structure.fusion import FusionSettings, fuse
 from kalmansfm.structure.fusion.weighted import refine_weighted
-from kalmansfm.structure.geometry.pinhole import CameraSet, project_points, refine_points
+from kalmansfm.structure.geometry.pinhole import CameraSet, project_points
+from kalmansfm.structure.geometry.refinement import refine_points
 
 CHI3_999 = stats.chi2.ppf(0.999, 3)
 

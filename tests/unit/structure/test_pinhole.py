@@ -13,10 +13,10 @@ from kalmansfm.structure.geometry.pinhole import (
     intrinsic_matrices,
     project_points,
     projection_jacobians,
-    refine_points,
     scene_orientation,
     triangulate_points,
 )
+from kalmansfm.structure.geometry.refinement import refine_points
 
 
 def ring_cameras(views: int, radius: float = 10.0, seed: int = 0) -> CameraSet:

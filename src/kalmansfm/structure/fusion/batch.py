@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.batched import inverse3, jacobian_products
-from ..geometry.pinhole import project_points, projection_jacobians, refine_points, triangulate_points
+from ..geometry.pinhole import project_each, project_points, projection_jacobians, triangulate_points
+from ..geometry.refinement import LISTED_FILL, refine_points
 from ..points import PointStatus
 from .chunks import Chunk, ChunkResult, concat_history, finish
 from .weighted import refine_weighted
@@ -13,19 +14,36 @@ from .weighted import refine_weighted
 __all__ = ["run_batch"]
 
 
-def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(V, n) rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r of each used observation (unit σ), NaN elsewhere."""
-    J = projection_jacobians(P, X)
-    J = np.where(mask[..., None, None], J, 0.0)
-    N_inv = inverse3(jacobian_products(J)[0])
-    hat = J @ N_inv @ np.swapaxes(J, -1, -2)
-    A = np.eye(2) - hat
+def _quadratic_form(J: np.ndarray, N_inv: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r for stacks of 2 × 3 J, 3 × 3 N⁻¹ and 2-vectors r; NaN where I - J N⁻¹ Jᵀ is singular."""
+    A = np.eye(2) - J @ N_inv @ np.swapaxes(J, -1, -2)
     det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
-    det = np.where(mask & (det > 1e-12), det, np.nan)
     # 2 × 2 inverse quadratic form: rᵀ adj(A) r / det(A)
     q = (A[..., 1, 1] * r[..., 0] ** 2 - (A[..., 0, 1] + A[..., 1, 0]) * r[..., 0] * r[..., 1]
          + A[..., 0, 0] * r[..., 1] ** 2)
-    return q / det
+    return q / np.where(det > 1e-12, det, np.nan)
+
+
+def _leave_one_out(P: np.ndarray, X: np.ndarray, r: np.ndarray, mask: np.ndarray, listed: bool | None = None
+                   ) -> np.ndarray:
+    """(V, n) rᵀ (I - J N⁻¹ Jᵀ)⁻¹ r of each used observation (unit σ), NaN elsewhere.
+
+    On the dense arrays, or on the list of the used observations (``listed``; None: when fewer than
+    :data:`~kalmansfm.structure.geometry.refinement.LISTED_FILL` of them are used) — the same to rounding.
+    """
+    if listed is None:
+        listed = mask.sum() < LISTED_FILL * mask.size
+    if not listed:
+        J = np.where(mask[..., None, None], projection_jacobians(P, X), 0.0)
+        return np.where(mask, _quadratic_form(J, inverse3(jacobian_products(J)[0]), r), np.nan)
+    out = np.full(mask.shape, np.nan)
+    point, view = np.nonzero(mask.T)  # sorted by point
+    if point.size:
+        _, _, J = project_each(P[view], X[point])
+        first = np.r_[True, point[1:] != point[:-1]]
+        normal = np.add.reduceat(np.swapaxes(J, 1, 2) @ J, np.flatnonzero(first), axis=0)
+        out[view, point] = _quadratic_form(J, inverse3(normal)[np.cumsum(first) - 1], r[view, point])
+    return out
 
 
 def _batch_fit(P: np.ndarray, obs: np.ndarray, mask: np.ndarray, start: np.ndarray | None, orientation: int):

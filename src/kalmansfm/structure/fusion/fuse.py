@@ -26,7 +26,7 @@ Methods
     covariance is the second-order image of θ's (:func:`_theta_to_point`).
 ``batch`` (the reference)
     Per point, maximum likelihood over all its views: linear triangulation, then
-    Gauss–Newton in (X, Y, Z) (:func:`~.pinhole.refine_points`).
+    Gauss–Newton in (X, Y, Z) (:func:`~kalmansfm.structure.geometry.refinement.refine_points`).
 ``pairs`` (the report's scheme, over-confident)
     Consecutive observations of a point, two views at a time, are triangulated by
     the report's midpoint (:func:`~.triangulation.triangulate_midpoint`) with

@@ -3,7 +3,7 @@
 Each observation carries a precision π (its weight relative to 1/σ², from a fitted noise
 model; 0 = not used).  Per point, Levenberg–Marquardt-damped Gauss–Newton minimises
 Σ_v π_v |x_v − proj(P_v X)|² from a start, keeping every step on the oriented side of the
-cameras that see it — :func:`~kalmansfm.structure.geometry.pinhole.refine_points` with
+cameras that see it — :func:`~kalmansfm.structure.geometry.refinement.refine_points` with
 weights.  The unit-σ covariance is (Σ π Jᵀ J)⁻¹.
 """
 

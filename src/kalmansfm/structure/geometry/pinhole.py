@@ -1,4 +1,4 @@
-"""Projective cameras with known poses: projection, linear triangulation and per-point refinement.
+"""Projective cameras with known poses: projection and linear triangulation (refinement: :mod:`.refinement`).
 
 The shared geometric core of structure fusion with known cameras.  Everything
 is batched over points (and over views where that makes sense): no Python loop
@@ -42,16 +42,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InvalidInputError, KalmanSfmWarning
-from ..._validation import as_float_array, check_finite, check_positive
+from ..._validation import as_float_array, check_finite
 from ..points import PointStatus
 from .camera_checks import ROTATION_ROUNDED, check_rotations, intrinsics_problem, projection_scale_problem
-from .batched import jacobian_products, solve3
+from .batched import jacobian_products
 
 __all__ = [
     "CameraPose",
     "CameraSet",
     "Projection",
-    "RefinedPoints",
     "Triangulation",
     "camera_centres",
     "decompose_projection",
@@ -59,7 +58,6 @@ __all__ = [
     "project_each",
     "project_points",
     "projection_jacobians",
-    "refine_points",
     "scene_orientation",
     "triangulate_points",
 ]
@@ -71,12 +69,6 @@ _SINGULAR_RATIO = 1e-12
 _DLT_RANK_RATIO = 1e-14
 # |w_h| / |X_h| of the homogeneous solution below this → a point at infinity (no parallax).
 _AT_INFINITY = 1e-10
-# Normal matrices with a condition number above this carry no usable covariance.
-_MAX_CONDITION = 1e12
-# Refinement: iterate while the squared Gauss–Newton step, in standard deviations, exceeds this
-# fraction of (1 + cost); a point is "converged" once it is below _CONVERGED.
-_STOP_DECREMENT = 1e-18
-_CONVERGED = 1e-6
 
 
 def intrinsic_matrices(fx: object, fy: object, cx: object, cy: object, skew: object) -> np.ndarray:
@@ -641,142 +633,3 @@ def triangulate_points(cameras: CameraSet | np.ndarray, observations: object, vi
     behind = np.any(seen & (depths * orientation <= 0), axis=0) & (status == PointStatus.OK)
     status[behind] = PointStatus.BEHIND_CAMERA
     return Triangulation(X, depths, views, status, int(orientation))
-
-
-@dataclass(frozen=True)
-class RefinedPoints:
-    """Points refined by Gauss–Newton on the reprojection error, with their covariances.
-
-    Attributes
-    ----------
-    points : (N, 3) — the minimiser of Σ |x_obs - π(P X)|² over the visible views;
-        NaN where the status is not OK.
-    covariances : (N, 3, 3) — σ² (JᵀJ)⁻¹ at the solution (J the stacked 2 × 3
-        Jacobians of the visible views); NaN where the status is not OK.
-    residuals : (V, N, 2) — observed minus projected pixels at the solution, NaN
-        where not visible (or the point failed).
-    reprojection_rms : (N,) — RMS of the 2-D residual lengths over visible views.
-    views : (N,) int — observations used.
-    status : (N,) int8 — :class:`PointStatus` values.
-    converged : (N,) bool — the remaining Gauss–Newton step is below 10⁻³ standard deviations.
-    pixel_std : float — the σ the covariances were scaled with.
-    orientation : +1 or -1 — the scene orientation used for cheirality.
-    """
-
-    points: np.ndarray
-    covariances: np.ndarray
-    residuals: np.ndarray
-    reprojection_rms: np.ndarray
-    views: np.ndarray
-    status: np.ndarray
-    converged: np.ndarray
-    pixel_std: float
-    orientation: int
-
-
-def _normal_equations(P: np.ndarray, X: np.ndarray, obs: np.ndarray, seen: np.ndarray, orientation: int
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals (V, N, 2), JᵀJ (N, 3, 3), Jᵀr (N, 3), cost (N,) and cheirality (N,) at X."""
-    pix, w, J = _project_jacobian(P, X)
-    r = np.where(seen[..., None], obs - pix, 0.0)
-    J = np.where(seen[..., None, None], J, 0.0)
-    JtJ, Jtr = jacobian_products(J, r)
-    cost = np.einsum("vna,vna->n", r, r)
-    depth_sign = np.sign(_depth_scales(P))[:, None] * w
-    in_front = ~np.any(seen & (depth_sign * orientation <= 0), axis=0)
-    return r, JtJ, Jtr, cost, in_front
-
-
-def refine_points(cameras: CameraSet | np.ndarray, observations: object, initial: object,
-                  visible: object | None = None, pixel_std: float = 1.0, orientation: int | None = None,
-                  max_iterations: int = 50) -> RefinedPoints:
-    """Maximum-likelihood points for known cameras: Levenberg–Marquardt-damped Gauss–Newton, batched over points.
-
-    Minimises, for each point independently, the sum of squared reprojection
-    errors over its visible views.  Steps must lower the cost and keep the point
-    on the oriented side of every camera that sees it; the damping adapts per
-    point, and points leave the iteration as soon as their step is negligible.
-
-    Parameters
-    ----------
-    cameras : CameraSet, or (V, 3, 4) projection matrices.
-    observations : (V, N, 2) — (x, y), NaN where unseen.
-    initial : (N, 3) — starting points (e.g. :func:`triangulate_points`); NaN rows
-        are reported DEGENERATE.
-    visible : (V, N) bool, optional — further restricts the observations used.
-    pixel_std : float > 0 — σ of the image noise in pixels; the covariance is σ² (JᵀJ)⁻¹.
-    orientation : +1, -1 or None — scene orientation; None: the sign most
-        observations' depths at ``initial`` agree on.
-    max_iterations : int — per point.
-
-    Returns
-    -------
-    RefinedPoints
-
-    Examples
-    --------
-    >>> cams = CameraSet.from_pose(np.diag([500.0, 500.0, 1.0]), np.stack([np.eye(3)] * 3),
-    ...                            [[0.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [-2.0, 0.0, 0.0]])
-    >>> X = np.array([[0.3, 0.1, 4.0]])
-    >>> obs = project_points(cams, X).pixels + [[[0.5, 0.0]], [[0.0, 0.0]], [[0.0, 0.0]]]
-    >>> fit = refine_points(cams, obs, X, pixel_std=0.5)
-    >>> fit.status.tolist(), fit.converged.tolist(), bool(np.all(np.diagonal(fit.covariances[0]) > 0))
-    ([0], [True], True)
-    >>> float(fit.reprojection_rms[0]) < 0.5
-    True
-    """
-    P, obs, seen = _cameras_and_observations(cameras, observations, visible)
-    V, N = seen.shape
-    X = as_float_array("initial", initial).copy()
-    if X.shape != (N, 3):
-        raise InvalidInputError(f"initial must have shape ({N}, 3), one point per observation column; got {X.shape}")
-    sigma = check_positive("pixel_std", pixel_std, "pixels")
-    views = seen.sum(axis=0)
-    status = np.full(N, PointStatus.OK, dtype=np.int8)
-    status[~np.isfinite(X).all(axis=1)] = PointStatus.DEGENERATE
-    status[views < 2] = PointStatus.TOO_FEW_VIEWS
-    live = status == PointStatus.OK
-    X[~live] = 0.0
-    if orientation is None:
-        orientation = scene_orientation(project_points(P, X).depths, seen & live)
-    seen_live = seen & live
-    r, JtJ, Jtr, cost, in_front = _normal_equations(P, X, obs, seen_live, orientation)
-    lam = np.full(N, 1e-4)
-    stalled = np.zeros(N, dtype=bool)
-    active = live.copy()
-    for _ in range(max_iterations):
-        gn = solve3(JtJ, Jtr)
-        # gᵀ N⁻¹ g / σ²: the squared Gauss–Newton step measured in standard deviations
-        decrement = np.einsum("ni,ni->n", Jtr, gn) / sigma**2
-        active &= (decrement >= _STOP_DECREMENT * (1.0 + cost / sigma**2)) & (lam < 1e12)
-        active &= ~((decrement < _CONVERGED) & stalled)
-        if not active.any():
-            break
-        a = np.flatnonzero(active)
-        Na = JtJ[a]
-        # Levenberg–Marquardt: (N + λ diag N) δ = Jᵀ r
-        damped = Na + lam[a, None, None] * np.diagonal(Na, axis1=1, axis2=2)[:, :, None] * np.eye(3)
-        X_new = X[a] + solve3(damped, Jtr[a])
-        r_new, JtJ_new, Jtr_new, cost_new, front_new = _normal_equations(P, X_new, obs[:, a], seen_live[:, a],
-                                                                          orientation)
-        ok = front_new & np.isfinite(cost_new) & (cost_new <= cost[a])
-        acc = a[ok]
-        X[acc], r[:, acc], JtJ[acc], Jtr[acc] = X_new[ok], r_new[:, ok], JtJ_new[ok], Jtr_new[ok]
-        stalled[a] = ~ok | (cost[a] - cost_new <= 1e-14 * cost[a])
-        cost[acc] = cost_new[ok]
-        in_front[acc] = True
-        lam[a] = np.where(ok, np.maximum(lam[a] / 10.0, 1e-12), np.minimum(lam[a] * 10.0, 1e12))
-    decrement = np.einsum("ni,ni->n", Jtr, solve3(JtJ, Jtr)) / sigma**2
-    evals = np.linalg.eigvalsh(JtJ)
-    conditioned = np.isfinite(evals).all(axis=1) & (evals[:, 0] > evals[:, 2] / _MAX_CONDITION)
-    status[live & ~conditioned] = PointStatus.DEGENERATE
-    status[live & conditioned & ~in_front] = PointStatus.BEHIND_CAMERA
-    ok = status == PointStatus.OK
-    cov = np.full((N, 3, 3), np.nan)
-    cov[ok] = sigma**2 * np.linalg.inv(JtJ[ok])
-    X[~ok] = np.nan
-    residuals = np.where((seen & ok)[..., None], r, np.nan)
-    with np.errstate(invalid="ignore"):
-        rms = np.sqrt(np.where(ok, cost, np.nan) / np.maximum(views, 1))
-    return RefinedPoints(X, cov, residuals, rms, views, status, ok & (decrement < _CONVERGED), sigma,
-                         int(orientation))
