@@ -101,3 +101,12 @@ def test_listed_leave_one_out_residuals_equal_the_dense_ones(problem):
     np.testing.assert_array_equal(np.isnan(listed), np.isnan(dense))
     np.testing.assert_allclose(listed, dense, rtol=1e-9, atol=1e-12)
     assert np.isnan(dense[~mask]).all()
+
+
+def test_the_listed_sums_refuse_a_point_without_observations():
+    """reduceat would give such a point its successor's sums: the listed form checks instead."""
+    P = np.tile(np.hstack([np.eye(3), [[0.0], [0.0], [5.0]]]), (3, 1, 1))
+    seen = np.array([[True, False], [True, False], [False, False]])
+    equations = refinement._ListedEquations(P, np.zeros((3, 2, 2)), seen, 1)
+    with pytest.raises(ValueError, match="1 of the points to refine have no observation"):
+        equations.evaluate(np.array([0, 1]), np.zeros((2, 3)))

@@ -120,6 +120,8 @@ class _ListedEquations:
         rows = np.flatnonzero(member[self.point])
         position = np.searchsorted(points, self.point[rows])
         starts = np.flatnonzero(np.r_[True, position[1:] != position[:-1]])
+        if len(starts) != len(points):  # a point without observations would shift every sum after it
+            raise ValueError(f"{len(points) - len(starts)} of the points to refine have no observation")
         return rows, position, starts
 
     def evaluate(self, points: np.ndarray, X: np.ndarray, keep: bool = False
