@@ -35,8 +35,8 @@ class FeatureSettings:
         its cost is the area: 1.4 builds a pyramid of half the pixels of OpenCV's.
     sift_sigma : SIFT's base blur, in pixels of the first octave.  With the upsampling it sets the finest
         scale in pixels of the image: 1.2 / 1.4 = 0.86, next to OpenCV's 1.6 / 2 = 0.8.  Together the two
-        defaults detect 1.2 s → 0.5 s on dinoRing, and the cameras stay within the targets of all three
-        Middlebury sets (docs/front-end.md).
+        defaults take dinoRing's detection from 1.1 s to 0.5 s, and the cameras stay within the targets of
+        all three Middlebury sets (docs/front-end.md).
     ratio : Lowe's ratio test: a nearest neighbour is kept when its distance is below ``ratio`` times the
         second nearest's; matches must also be mutual nearest neighbours.
     exhaustive_max_images : up to this many images every pair is matched; beyond it the pairs are a
