@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .._validation import as_float_array
 from ..errors import InvalidInputError, NotEnoughDataError
 from ..features import (
     FeatureTracks,
@@ -45,7 +46,7 @@ from ..features import (
 )
 from ..structure.perspective import reconstruct_perspective
 from ..structure.reconstruction import Reconstruction
-from ..structure.perspective.settings import validate_tracks_and_intrinsics
+from ..structure.perspective.settings import validate_intrinsics
 from ..tracking.grey import colour_to_grey
 from .active_search import GuidedMatchingSummary, active_search, drop_inconsistent
 from .backend import CameraSolution, read_solution
@@ -143,12 +144,11 @@ def _enough_images(count: int) -> None:
 
 
 def _intrinsics(intrinsics: object, count: int) -> np.ndarray:
-    K = np.asarray(intrinsics, dtype=np.float64) if not isinstance(intrinsics, np.ndarray) else intrinsics
+    K = as_float_array("intrinsics", intrinsics)
     if K.ndim == 3 and K.shape[0] != count:
         raise InvalidInputError(f"intrinsics hold {K.shape[0]} K matrices for {count} images; give one per image "
                                 "or one (3, 3) K for all")
-    _, K = validate_tracks_and_intrinsics(np.zeros((count, 0, 2)), K)
-    return K
+    return validate_intrinsics(K, count)
 
 
 # -- steps ------------------------------------------------------------------------------------------
@@ -261,14 +261,15 @@ def reconstruct_images(images: object, intrinsics: object, settings: MappingSett
         known = None
     if known is not None:  # checked before any image is read
         _enough_images(known)
-        _intrinsics(intrinsics, known)
+        K = _intrinsics(intrinsics, known)
     lap("input")
     grey = _GreyImages(images)
     features = detect_all(grey, fs)  # the images are read as the first ones are detected
     lap("detection")
     F = len(features)
-    _enough_images(F)
-    K = _intrinsics(intrinsics, F)
+    if known is None:
+        _enough_images(F)
+        K = _intrinsics(intrinsics, F)
     image_size = (grey.shape[1], grey.shape[0])  # type: ignore[index]
     selection = select_pairs(features, fs)
     lap("pair_selection")
