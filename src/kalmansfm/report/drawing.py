@@ -190,7 +190,8 @@ def render_tracked_frames(
             semi_axes, angles = gate_ellipses(tracks.covariances[f], radius)
             gates = _ellipse_polygons(current, semi_axes * scale * _ONE, angles)
         for color, members in groups:
-            # the path so far: one 2-point line per pair of consecutive known positions (gaps stay open, but a\n            # shrunken picture's stride bridges one shorter than itself)
+            # the path so far: one 2-point line per pair of consecutive known positions (gaps stay open, but a
+            # shrunken picture's stride bridges one shorter than itself)
             path = shown[:, members]
             pairs = np.stack([path[:-1], path[1:]], axis=2)  # (f, n, 2 ends, 2)
             pairs = pairs[np.isfinite(pairs).all(axis=(2, 3))]
