@@ -44,7 +44,7 @@ from ..reconstruction import (
 )
 from .factorization import metric_frame, single_threaded_blas
 from .reconstruct import affine_cameras
-from .sequential import SequentialFactors, sequential_factors
+from .sequential import OUTLIER_SIGMAS, SequentialFactors, robust_sigma, sequential_factors
 from .uncertainty import GAUGE_PARAMETERS, MAX_STD_RATIO, MIN_VIEWS, judge_points
 
 __all__ = ["DENSE_ENTRIES", "OUTLIER_SIGMAS", "POLISH_ITERATIONS", "POLISH_TOL", "FrameSystems", "PointSystems",
@@ -55,16 +55,12 @@ __all__ = ["DENSE_ENTRIES", "OUTLIER_SIGMAS", "POLISH_ITERATIONS", "POLISH_TOL",
 #: (:func:`factorize_long_sequence`), not as one dense array (8 bytes × 2 coordinates an entry, and the
 #: dense fit's copies).
 DENSE_ENTRIES = 20_000_000
-#: An observation farther from the fit than this many robust σ (the median residual length / √(2 ln 2),
-#: the Rayleigh median) is rejected as an outlier: 1 in 3 000 of Gaussian observations is.
-OUTLIER_SIGMAS = 4.0
 #: The polish's iteration cap and relative stopping tolerance on the cost.
 POLISH_ITERATIONS = 10
 POLISH_TOL = 1e-6
 
 # No residual shorter than this is an outlier, however small σ̂ (exact data).
 _MIN_OUTLIER_PX = 0.01
-_RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
 _REJECTION_ROUNDS = 3
 # A normal matrix whose smallest / largest eigenvalue is below this is not solved (the unknown is left out).
 _CONDITION = 1e-15
@@ -181,9 +177,7 @@ def _residuals(motion: np.ndarray, translation: np.ndarray, shape: np.ndarray, f
 
 def _outlier_threshold(residual: np.ndarray) -> float:
     """:data:`OUTLIER_SIGMAS` robust σ of the finite residual lengths (at least :data:`_MIN_OUTLIER_PX`)."""
-    finite = residual[np.isfinite(residual)]
-    sigma = float(np.median(finite)) / _RAYLEIGH_MEDIAN if finite.size else 0.0
-    return max(OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_PX)
+    return max(OUTLIER_SIGMAS * robust_sigma(residual), _MIN_OUTLIER_PX)
 
 
 @dataclass(frozen=True)

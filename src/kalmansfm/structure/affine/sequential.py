@@ -32,7 +32,8 @@ import numpy as np
 from ...errors import NotEnoughDataError
 from . import factorization
 
-__all__ = ["INITIAL_FRAMES", "RESECTION_VIEWS", "SequentialFactors", "sequential_factors"]
+__all__ = ["INITIAL_FRAMES", "OUTLIER_SIGMAS", "RESECTION_VIEWS", "SequentialFactors", "robust_sigma",
+           "sequential_factors"]
 
 #: Frames of the closed-form factorization that starts the sequence.
 INITIAL_FRAMES = 10
@@ -50,8 +51,10 @@ _MIN_RESECTION_POINTS = 8
 _INITIAL_SEARCH = 500
 _INITIAL_ITERATIONS = 200
 _INITIAL_TOL = 1e-10
-# Residual test in robust σ (as the global one), and the floor of σ (exact data).
-_SIGMAS = 4.0
+#: An observation farther from the fit than this many robust σ (:func:`robust_sigma`) is an outlier: 1 in 3 000
+#: of Gaussian observations is.  The resection's test and the long sequence's global one.
+OUTLIER_SIGMAS = 4.0
+# The floor of σ (exact data).
 _MIN_SIGMA = 1e-3
 _RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
 _RESECTION_ROUNDS = 5
@@ -89,8 +92,15 @@ class SequentialFactors:
     resected: int
 
 
-def _robust_sigma(residual: np.ndarray) -> float:
-    """σ of one coordinate from 2-D residual lengths (their median is σ √(2 ln 2))."""
+def robust_sigma(residual: np.ndarray) -> float:
+    """σ of one coordinate from 2-D residual lengths (their median is σ √(2 ln 2), the Rayleigh median), at least
+    10⁻³; NaN lengths are left out.
+
+    Examples
+    --------
+    >>> round(robust_sigma(np.array([1.0, np.sqrt(2 * np.log(2)), 5.0, np.nan])), 6)
+    1.0
+    """
     finite = residual[np.isfinite(residual)]
     return max(float(np.median(finite)) / _RAYLEIGH_MEDIAN, _MIN_SIGMA) if finite.size else _MIN_SIGMA
 
@@ -121,8 +131,8 @@ def _initial_fit(entries: np.ndarray, point: np.ndarray, frame: np.ndarray, xy: 
         motion, translation = fit.motion, fit.translation
         predicted = np.einsum("fci,pi->fpc", motion, fit.shape) + translation[:, None]
         residual = np.linalg.norm(predicted - block, axis=2)
-        sigma = _robust_sigma(residual.ravel())
-        bad_track = (residual > _SIGMAS * sigma).any(axis=0)
+        sigma = robust_sigma(residual.ravel())
+        bad_track = (residual > OUTLIER_SIGMAS * sigma).any(axis=0)
         if not bad_track.any() or attempt == 2:
             break
         rejected |= np.isin(point[entries], points[bad_track])
@@ -234,7 +244,7 @@ def _resect(shape: np.ndarray, covariance: np.ndarray, xy: np.ndarray, sigma: fl
         residual = np.linalg.norm(h @ solution - xy, axis=1)
         spread = np.einsum("ci,nij,cj->n", motion, covariance, motion)  # the points' own error, projected
         weight = sigma**2 / (sigma**2 + 0.5 * spread)  # generalised least squares: a vaguer point counts less
-        bound = _SIGMAS**2 * (sigma**2 + spread)
+        bound = OUTLIER_SIGMAS**2 * (sigma**2 + spread)
         if round_ < _RESECTION_ROUNDS - 2:
             bound = np.maximum(bound, (3.0 * float(np.median(residual[keep]))) ** 2)
         inside = residual**2 <= bound
