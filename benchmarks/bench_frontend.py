@@ -45,6 +45,7 @@ from kalmansfm.io.frames import FrameSource, list_image_files
 from kalmansfm.io.middlebury import read_middlebury_cameras
 from kalmansfm.mapping import MappingSettings, reconstruct_images
 from kalmansfm.structure import CameraSet, align_similarity, fuse
+from kalmansfm.structure.geometry.orthographic import rotation_angle_deg
 from kalmansfm.structure.geometry.pinhole import camera_centres
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,14 +108,8 @@ def camera_scores(data: Dataset, registered: np.ndarray, rotations: np.ndarray, 
     u, _, vt = np.linalg.svd(np.einsum("fji,fjk->ik", true_r, ours_r))
     own = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     return dict(registered=int(registered.sum()), centres=float(rms),
-                rotation=float(np.median(_angles_deg(true_r, ours_r @ fit.rotation.T))),
-                rotation_own_frame=float(np.median(_angles_deg(true_r, ours_r @ own.T))))
-
-
-def _angles_deg(true_r: np.ndarray, aligned: np.ndarray) -> np.ndarray:
-    """(F,) angle of R_trueᵀ R_aligned, degrees."""
-    error = np.einsum("fji,fjk->fik", true_r, aligned)
-    return np.degrees(np.arccos(np.clip((np.trace(error, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+                rotation=float(np.median(rotation_angle_deg(ours_r @ fit.rotation.T, true_r))),
+                rotation_own_frame=float(np.median(rotation_angle_deg(ours_r @ own.T, true_r))))
 
 
 def within_3px(data: Dataset, observations: np.ndarray, mask: np.ndarray | None = None) -> tuple[float, int]:
